@@ -1,0 +1,26 @@
+# DMesh harness. `make demo` and `make test` set themselves up first (Debian packages, .venv, native build).
+PY := .venv/bin/python
+export OMP_NUM_THREADS ?= 2
+
+.PHONY: setup test test-slow demo bench reproduce-tables clean
+
+setup:
+	@bash tools/setup.sh
+
+test: setup
+	$(PY) -m pytest -q
+
+test-slow: setup
+	$(PY) -m pytest -q -m slow
+
+demo: setup
+	$(PY) -m eval.cli demo -o out
+
+bench: setup
+	$(PY) -m eval.bench all
+
+reproduce-tables: setup
+	$(PY) -m eval.cli reproduce-tables -o reports
+
+clean:
+	rm -rf build out .pytest_cache

@@ -1,0 +1,104 @@
+"""The one module that imports the compiled core `dmesh._native`.
+
+Every function here converts its inputs to the fixed dtypes of the native boundary (float64 geometry,
+int32 indices, C-contiguous), validates shapes with messages that name the argument, and returns NumPy
+arrays. Letters: N points, T tets, F faces.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+try:
+    from dmesh import _native
+except ImportError as exc:  # pragma: no cover - only without a build
+    raise ImportError(
+        "dmesh._native is not built; run `make setup` (or `pip install --no-build-isolation -e .`)"
+    ) from exc
+
+from dmesh.typing import GEOMETRY_DTYPE, INDEX_DTYPE
+
+
+def as_points(points, name: str = "points") -> np.ndarray:
+    """(N, 3) float64 C-contiguous copy-free view where possible; raises ValueError on bad shape/values."""
+    if hasattr(points, "detach"):
+        points = points.detach().cpu().numpy()
+    arr = np.ascontiguousarray(points, dtype=GEOMETRY_DTYPE)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        bad = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
+        raise ValueError(f"{name} must be finite; row {bad} is {arr[bad].tolist()}")
+    return arr
+
+
+def as_weights(weights, n: int, name: str = "weights") -> np.ndarray:
+    """(N,) float64; None gives zeros. Raises ValueError on bad shape or non-finite values."""
+    if weights is None:
+        return np.zeros(n, dtype=GEOMETRY_DTYPE)
+    if hasattr(weights, "detach"):
+        weights = weights.detach().cpu().numpy()
+    arr = np.ascontiguousarray(weights, dtype=GEOMETRY_DTYPE)
+    if arr.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},) to match the points, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be finite; index {int(np.flatnonzero(~np.isfinite(arr))[0])} is not")
+    return arr
+
+
+def as_index(array, cols: int, name: str) -> np.ndarray:
+    """(R, cols) int32 C-contiguous; raises ValueError on a bad shape."""
+    if hasattr(array, "detach"):
+        array = array.detach().cpu().numpy()
+    arr = np.ascontiguousarray(array, dtype=INDEX_DTYPE)
+    if arr.ndim != 2 or arr.shape[1] != cols:
+        raise ValueError(f"{name} must have shape (rows, {cols}), got {arr.shape}")
+    return arr
+
+
+class RawTriangulation(NamedTuple):
+    tets: np.ndarray          # (T, 4) int32
+    neighbors: np.ndarray     # (T, 4) int32, -1 on the hull
+    duplicate_of: np.ndarray  # (N,) int32, -1 when unique
+    stats: dict               # insert_seconds, total_seconds, num_vertices, parallel
+
+
+def regular_triangulation(points, weights, parallel: int = -1) -> RawTriangulation:
+    """CGAL regular triangulation; see `dmesh.wdt.regular_triangulation` for the contract."""
+    p = as_points(points)
+    w = as_weights(weights, len(p))
+    return RawTriangulation(*_native.regular_triangulation(p, w, int(parallel)))
+
+
+def have_tbb() -> bool:
+    return bool(_native.have_tbb())
+
+
+PARALLEL_THRESHOLD: int = int(_native.PARALLEL_THRESHOLD)
+
+
+def tet_neighbors(tets) -> np.ndarray:
+    """(T, 4) int32 tet opposite each vertex, or -1 on the hull."""
+    return _native.tet_neighbors(as_index(tets, 4, "tets"))
+
+
+class RawPowerDiagram(NamedTuple):
+    orthocentres: np.ndarray  # (T, 3) float64
+    faces: np.ndarray         # (F, 3) int32, sorted rows
+    face_tets: np.ndarray     # (F, 2) int32, -1 second for hull faces
+    hull_dirs: np.ndarray     # (F, 3) float64
+    tet_faces: np.ndarray     # (T, 4) int32
+    point_tets: tuple         # (offsets (N+1,), indices)
+    point_faces: tuple
+    point_neighbors: tuple
+
+
+def power_diagram(points, weights, tets, neighbors) -> RawPowerDiagram:
+    p = as_points(points)
+    w = as_weights(weights, len(p))
+    t = as_index(tets, 4, "tets")
+    nb = as_index(neighbors, 4, "neighbors")
+    if len(nb) != len(t):
+        raise ValueError(f"neighbors must have {len(t)} rows like tets, got {len(nb)}")
+    return RawPowerDiagram(*_native.power_diagram(p, w, t, nb))

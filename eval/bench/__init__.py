@@ -1,0 +1,1 @@
+"""Benchmarks: `python -m eval.bench <name>` (or `all`). Each writes tables to reports/."""

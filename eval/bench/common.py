@@ -1,0 +1,85 @@
+"""Shared benchmark helpers: timing statistics, machine description, table writing."""
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import subprocess
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+from eval.io import write_text
+
+
+def time_call(fn: Callable[[], object], repeats: int, warmup: int = 1) -> dict:
+    """Median, min and max wall time (s) of fn over `repeats` calls after `warmup` calls."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return {"median": statistics.median(times), "min": min(times), "max": max(times), "n": repeats}
+
+
+def git_hash() -> str:
+    try:
+        return subprocess.check_output(["git", "rev-parse", "--short", "HEAD"], text=True,
+                                       stderr=subprocess.DEVNULL).strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def machine_info() -> dict:
+    import numpy
+    import torch
+
+    cpu = platform.processor() or "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu": cpu, "cores": os.cpu_count(), "threads": torch.get_num_threads(),
+        "python": platform.python_version(), "torch": torch.__version__, "numpy": numpy.__version__,
+        "git": git_hash(),
+    }
+
+
+def markdown_table(rows: list[dict], columns: list[str], formats: dict[str, str] | None = None) -> str:
+    formats = formats or {}
+    head = "| " + " | ".join(columns) + " |\n|" + "---|" * len(columns) + "\n"
+    body = ""
+    for r in rows:
+        cells = []
+        for c in columns:
+            v = r.get(c, "")
+            cells.append(format(v, formats[c]) if c in formats and isinstance(v, (int, float)) else str(v))
+        body += "| " + " | ".join(cells) + " |\n"
+    return head + body
+
+
+def write_report(out: str | Path, name: str, title: str, intro: str, table: str, rows: list[dict]) -> Path:
+    """Writes reports/<name>.md (with machine info) and reports/<name>.csv."""
+    import csv
+    import io
+
+    out = Path(out)
+    info = machine_info()
+    machine = ", ".join(f"{k} {v}" for k, v in info.items())
+    md = f"# {title}\n\n{intro}\n\n{table}\nMachine: {machine}.\n\nRegenerate: `python -m eval.bench {name.removeprefix('bench_')}`.\n"
+    write_text(out / f"{name}.md", md)
+    buf = io.StringIO()
+    if rows:
+        w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()))
+        w.writeheader()
+        w.writerows(rows)
+    write_text(out / f"{name}.csv", buf.getvalue())
+    return out / f"{name}.md"

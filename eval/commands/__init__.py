@@ -1,0 +1,1 @@
+"""Subcommands of the `dmesh` console script, one module each (discovered by eval.cli)."""

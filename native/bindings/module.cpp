@@ -1,0 +1,13 @@
+// dmesh._native: the compiled core. Imported only by dmesh/native.py.
+#include <nanobind/nanobind.h>
+
+namespace nb = nanobind;
+
+void bind_wdt(nb::module_& m);
+void bind_power_diagram(nb::module_& m);
+
+NB_MODULE(_native, m) {
+  m.doc() = "DMesh native core (CGAL triangulation, power diagram, argmin searches).";
+  bind_wdt(m);
+  bind_power_diagram(m);
+}

@@ -1,0 +1,148 @@
+"""The weighted Delaunay triangulation against independent oracles, and its power diagram."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dmesh import wdt
+from dmesh.reference import wdt as ref
+from conftest import spacing_weights
+
+gudhi = pytest.importorskip("gudhi", reason="gudhi is the independent WDT oracle (test extra)")
+
+
+@pytest.mark.parametrize("n", [5, 50, 1000, 20000])
+@pytest.mark.parametrize("weighted", [True, False])
+def test_tets_match_independent_oracles(rng, n, weighted):
+    p = rng.random((n, 3))
+    w = spacing_weights(rng, n) if weighted else np.zeros(n)
+    ours = ref.canonical_tets(wdt.regular_triangulation(p, w))
+    assert len(ours) > 0
+    np.testing.assert_array_equal(ours, ref.canonical_tets(ref.gudhi_tets(p, w)))
+    if n >= 10:  # Qhull needs at least 5 points; random input is in general position
+        np.testing.assert_array_equal(ours, ref.canonical_tets(ref.lifted_hull_tets(p, w)))
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_parallel_insertion_gives_the_same_tets(rng, parallel):
+    n = 30000
+    p = rng.random((n, 3))
+    w = spacing_weights(rng, n)
+    seq = ref.canonical_tets(wdt.regular_triangulation(p, w, parallel=False))
+    tri = wdt.triangulate(p, w, parallel=parallel)
+    np.testing.assert_array_equal(ref.canonical_tets(tri.tets), seq)
+
+
+def test_large_weights_hide_points_and_match_oracle(rng):
+    n = 2000
+    p = rng.random((n, 3))
+    w = np.where(rng.random(n) < 0.5, 0.01, 0.0)  # weights >> spacing^2: many hidden points
+    tets = wdt.regular_triangulation(p, w)
+    np.testing.assert_array_equal(ref.canonical_tets(tets), ref.canonical_tets(ref.gudhi_tets(p, w)))
+    pd = wdt.PowerDiagram(p, w, tets)
+    assert pd.hidden.sum() > 100
+    assert not np.isin(np.flatnonzero(pd.hidden), tets).any()
+
+
+@pytest.mark.parametrize("n", [8, 30, 120])
+def test_empty_power_sphere_brute_force(rng, n):
+    p = rng.random((n, 3))
+    w = spacing_weights(rng, n, scale=0.5)
+    tets = wdt.regular_triangulation(p, w)
+    assert not ref.empty_power_sphere_violations(p, w, tets).any()
+
+
+def test_empty_power_sphere_check_catches_a_wrong_tet():
+    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.2, 0.2, 0.2]], dtype=float)
+    w = np.zeros(5)
+    assert ref.empty_power_sphere_violations(p, w, np.array([[0, 1, 2, 3]]))[0]
+    assert not ref.empty_power_sphere_violations(p, w, wdt.regular_triangulation(p, w)).any()
+
+
+def test_hull_volume_is_covered(rng):
+    from scipy.spatial import ConvexHull
+
+    p = rng.random((500, 3))
+    tets = wdt.regular_triangulation(p, None)
+    a, b, c, d = (p[tets[:, k]] for k in range(4))
+    vol = np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) / 6.0
+    assert (vol > 0).all(), "tets are positively oriented"
+    assert vol.sum() == pytest.approx(ConvexHull(p).volume, rel=1e-9)
+
+
+def test_grid_gives_six_tets_per_cube_and_no_flat_ones():
+    g = np.linspace(0.0, 1.0, 20)
+    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    tets = wdt.regular_triangulation(p, np.zeros(len(p)))
+    assert len(tets) == 6 * 19**3 == 41154
+    a, b, c, d = (p[tets[:, k]] for k in range(4))
+    vol = np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) / 6.0
+    assert vol.min() > 1e-8
+    assert vol.sum() == pytest.approx(1.0)
+
+
+def test_hidden_points_are_in_no_tet():
+    g = np.linspace(0.0, 1.0, 8)
+    grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    h = g[1] - g[0]
+    centres = grid[(grid < 1.0 - 1e-9).all(1)] + h / 2
+    p = np.concatenate([grid, centres])
+    w = np.concatenate([np.full(len(grid), h * h), np.zeros(len(centres))])
+    tets = wdt.regular_triangulation(p, w)
+    used = np.unique(tets)
+    assert np.array_equal(used, np.arange(len(grid))), "cube centres are hidden by the heavy grid"
+    pd = wdt.PowerDiagram(p, w, tets)
+    np.testing.assert_array_equal(pd.hidden, np.arange(len(p)) >= len(grid))
+
+
+@pytest.mark.parametrize("heavier_copy", [False, True])
+def test_duplicates_merge_and_the_first_index_survives(rng, heavier_copy):
+    p = rng.random((300, 3))
+    dup_src = rng.choice(300, 40, replace=False)
+    p = np.concatenate([p, p[dup_src]])
+    w = np.zeros(len(p))
+    if heavier_copy:
+        w[300:] = 1e-4  # the contract keeps the first index even when a later copy is heavier
+    tri = wdt.triangulate(p, w)
+    used = np.unique(tri.tets)
+    assert not np.isin(np.arange(300, 340), used).any()
+    assert np.isin(dup_src, used).all()
+    np.testing.assert_array_equal(tri.duplicate_of[300:], dup_src)
+    assert (tri.duplicate_of[:300] == -1).all()
+    # Same triangulation as with the copies removed.
+    np.testing.assert_array_equal(ref.canonical_tets(tri.tets),
+                                  ref.canonical_tets(wdt.regular_triangulation(p[:300], w[:300])))
+
+
+@pytest.mark.parametrize(
+    "points, weights, message",
+    [
+        (np.zeros((3, 3)), np.zeros(3), "at least 4 distinct points"),
+        (np.repeat(np.eye(3)[:1], 10, 0), np.zeros(10), "at least 4 distinct points"),
+        (np.c_[np.random.default_rng(0).random((50, 2)), np.full(50, 0.5)], np.zeros(50), "not affinely independent"),
+        (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.nan]]), np.zeros(4), "finite"),
+        (np.eye(4)[:, :3], np.array([0, 0, np.inf, 0]), "finite"),
+        (np.zeros((5, 2)), np.zeros(5), r"shape \(N, 3\)"),
+        (np.random.default_rng(0).random((6, 3)), np.zeros(5), r"shape \(6,\)"),
+    ],
+)
+def test_degenerate_input_raises_clear_errors(points, weights, message):
+    with pytest.raises(ValueError, match=message):
+        wdt.regular_triangulation(points, weights)
+
+
+def test_native_validates_shapes_itself():
+    from dmesh import _native
+
+    with pytest.raises(ValueError, match="weights must have shape"):
+        _native.regular_triangulation(np.zeros((5, 3)), np.zeros(4), -1)
+    with pytest.raises(TypeError):  # noconvert: float32 is refused rather than copied silently
+        _native.regular_triangulation(np.zeros((5, 3), np.float32), np.zeros(5), -1)
+
+
+def test_torch_input_is_accepted(rng):
+    import torch
+
+    p = torch.rand(100, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float32)
+    tets = wdt.regular_triangulation(p, torch.zeros(100))
+    assert tets.dtype == np.int32 and tets.shape[1] == 4
