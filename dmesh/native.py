@@ -102,3 +102,28 @@ def power_diagram(points, weights, tets, neighbors) -> RawPowerDiagram:
     if len(nb) != len(t):
         raise ValueError(f"neighbors must have {len(t)} rows like tets, got {len(nb)}")
     return RawPowerDiagram(*_native.power_diagram(p, w, t, nb))
+
+
+def nearest_planes_raw(points, weights, faces, samples, nbr_offsets, nbr_indices) -> np.ndarray:
+    """(F, 3) int32 nearest bisector neighbour per face vertex (-1: none). Arrays as in `_native`."""
+    return _native.nearest_planes(points, weights, as_index(faces, 3, "faces"),
+                                  np.ascontiguousarray(samples, dtype=GEOMETRY_DTYPE),
+                                  np.ascontiguousarray(nbr_offsets, dtype=INDEX_DTYPE),
+                                  np.ascontiguousarray(nbr_indices, dtype=INDEX_DTYPE))
+
+
+def nearest_cell_edges_raw(points, weights, faces, line_origin, line_dir, pf_offsets, pf_indices,
+                           edge_start, edge_end, is_ray, nbr_offsets, nbr_indices):
+    """((C, 3) int32 nearest power-cell edge per vertex (-1: none), (C, 3) uint8 line-crosses-cell)."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=GEOMETRY_DTYPE)  # noqa: E731
+    i32 = lambda a: np.ascontiguousarray(a, dtype=INDEX_DTYPE)  # noqa: E731
+    return _native.nearest_cell_edges(points, weights, as_index(faces, 3, "faces"), f64(line_origin),
+                                      f64(line_dir), i32(pf_offsets), i32(pf_indices), f64(edge_start),
+                                      f64(edge_end), np.ascontiguousarray(is_ray, dtype=np.uint8),
+                                      i32(nbr_offsets), i32(nbr_indices))
+
+
+def merge_csr(off_a, idx_a, off_b, idx_b):
+    """Row-wise sorted union of two CSR lists: (offsets, indices) int32."""
+    i32 = lambda a: np.ascontiguousarray(a, dtype=INDEX_DTYPE)  # noqa: E731
+    return _native.merge_csr(i32(off_a), i32(idx_a), i32(off_b), i32(idx_b))
