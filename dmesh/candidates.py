@@ -54,15 +54,28 @@ class CandidateFaces:
             return
         if f.min() < 0 or f.max() >= self.num_points:
             raise ValueError(f"candidate faces must index points in [0, {self.num_points})")
-        new = np.unique(face_keys(f, self.num_points))
-        self.keys = new if len(self.keys) == 0 else np.union1d(self.keys, new)
+        self.add_sorted_keys(np.unique(face_keys(f, self.num_points)))
+
+    def add_sorted_keys(self, keys: np.ndarray) -> None:
+        """Adds faces given as sorted unique `face_keys` (the fast path for a WDT's faces)."""
+        if len(self.keys) == 0:
+            self.keys = keys.astype(np.int64, copy=True)
+            return
+        pos = np.searchsorted(self.keys, keys).clip(max=len(self.keys) - 1)
+        new = keys[self.keys[pos] != keys]
+        if len(new):
+            # Two sorted runs: the stable sort (timsort) merges them in linear time.
+            self.keys = np.sort(np.concatenate([self.keys, new]), kind="stable")
 
     @property
     def faces(self) -> np.ndarray:
         """(C, 3) int64 sorted triples."""
+        return self.faces_of(self.keys)
+
+    def faces_of(self, keys: np.ndarray) -> np.ndarray:
+        """(K, 3) int64 triples of the given keys."""
         n = self.num_points
-        k = self.keys
-        return np.stack([k // (n * n), (k // n) % n, k % n], axis=1)
+        return np.stack([keys // (n * n), (keys // n) % n, keys % n], axis=1)
 
     def __len__(self) -> int:
         return len(self.keys)

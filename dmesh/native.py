@@ -104,8 +104,9 @@ def power_diagram(points, weights, tets, neighbors) -> RawPowerDiagram:
     return RawPowerDiagram(*_native.power_diagram(p, w, t, nb))
 
 
-def nearest_planes_raw(points, weights, faces, samples, nbr_offsets, nbr_indices) -> np.ndarray:
-    """(F, 3) int32 nearest bisector neighbour per face vertex (-1: none). Arrays as in `_native`."""
+def nearest_planes_raw(points, weights, faces, samples, nbr_offsets, nbr_indices):
+    """((F, 3) int32 nearest bisector neighbour per face vertex (-1: none), (F, 3) float64 its distance
+    (inf where none)). Arrays as in `_native`."""
     return _native.nearest_planes(points, weights, as_index(faces, 3, "faces"),
                                   np.ascontiguousarray(samples, dtype=GEOMETRY_DTYPE),
                                   np.ascontiguousarray(nbr_offsets, dtype=INDEX_DTYPE),
@@ -114,7 +115,8 @@ def nearest_planes_raw(points, weights, faces, samples, nbr_offsets, nbr_indices
 
 def nearest_cell_edges_raw(points, weights, faces, line_origin, line_dir, pf_offsets, pf_indices,
                            edge_start, edge_end, is_ray, nbr_offsets, nbr_indices):
-    """((C, 3) int32 nearest power-cell edge per vertex (-1: none), (C, 3) uint8 line-crosses-cell)."""
+    """((C, 3) int32 nearest power-cell edge per vertex (-1: none), (C, 3) uint8 line-crosses-cell,
+    (C, 3) float64 line-to-cell distance (0 where it crosses))."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=GEOMETRY_DTYPE)  # noqa: E731
     i32 = lambda a: np.ascontiguousarray(a, dtype=INDEX_DTYPE)  # noqa: E731
     return _native.nearest_cell_edges(points, weights, as_index(faces, 3, "faces"), f64(line_origin),

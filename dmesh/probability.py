@@ -21,6 +21,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import time
+from contextlib import contextmanager
+
 import numpy as np
 import torch
 
@@ -40,6 +43,7 @@ class ProbabilityConfig:
     knn_interval: int = 10         # add kNN candidate triples every this many passes (0: never)
     knn_k: int = 8                 # neighbours per point for kNN triples
     knn_thresholds: tuple = (0.0, 0.2, 0.4, 0.6, 0.8)  # real-value thresholds of the kNN passes
+    active_band: float | None = 15.0  # non-WDT faces with Delta < -active_band/alpha get no gradient
     power_cell_factor: bool = False  # multiply by the power-cell existence factor (paper Eq. 10)
     alpha_pc: float = 1000.0       # sigmoid sharpness of the power-cell factor
     eps_pc: float = 1e-4           # threshold of the power-cell factor
@@ -62,63 +66,86 @@ class ProbabilityConfig:
 
 @dataclass
 class DualEdges:
-    """Differentiable dual edges of the WDT faces (float64 tensors).
+    """Power-diagram edges of some WDT faces, recomputed in torch (float64, differentiable).
 
     Attributes:
-        start: (F, 3) orthocentre of the face's first tet.
-        end: (F, 3) orthocentre of the second tet, or the unit outward ray direction for hull faces.
-        sample: (F, 3) midpoint of a segment, or start + ray_length * direction for a ray.
-        is_ray: (F,) bool.
-        orthocentres: (T, 3) all orthocentres.
+        start: (K, 3) orthocentre of the face's first tet.
+        end: (K, 3) orthocentre of the second tet, or the unit outward ray direction for hull faces.
+        sample: (K, 3) midpoint of a segment, or start + ray_length * direction for a ray.
+        is_ray: (K,) bool.
     """
 
     start: torch.Tensor
     end: torch.Tensor
     sample: torch.Tensor
     is_ray: torch.Tensor
-    orthocentres: torch.Tensor
 
 
-def dual_edges(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, ray_length: float) -> DualEdges:
-    """Recomputes the power diagram's edges in torch from (points, weights) and the diagram's combinatorics."""
-    cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets).long())
-    ft = torch.from_numpy(pd.face_tets).long()
-    is_ray = torch.from_numpy(pd.is_hull)
-    start = cc[ft[:, 0]]
-    end = cc[ft[:, 1].clamp_min(0)]
-    hull = np.flatnonzero(pd.is_hull)
+def dual_edges(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, face_ids: np.ndarray,
+               ray_length: float) -> DualEdges:
+    """Recomputes the dual edges of WDT faces `face_ids` ((K,) ints) in torch from (points, weights) and the
+    diagram's combinatorics; only the orthocentres of their tets are computed."""
+    face_ids = np.asarray(face_ids, dtype=np.int64)
+    ft = pd.face_tets[face_ids]
+    tets, inverse = np.unique(np.maximum(ft, 0), return_inverse=True)
+    inverse = torch.from_numpy(inverse.reshape(-1, 2))
+    cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets[tets]).long())
+    is_ray = torch.from_numpy(pd.is_hull[face_ids])
+    start = cc[inverse[:, 0]]
+    end = cc[inverse[:, 1]]
+    hull = np.flatnonzero(pd.is_hull[face_ids])
     if len(hull):
-        hull_t = torch.from_numpy(hull)
-        n = geometry.face_normals(points, torch.from_numpy(pd.faces[hull]).long())
-        sign = torch.sign((n.detach() * torch.from_numpy(pd.ray_dirs[hull])).sum(-1))
+        n = geometry.face_normals(points, torch.from_numpy(pd.faces[face_ids[hull]]).long())
+        sign = torch.sign((n.detach() * torch.from_numpy(pd.ray_dirs[face_ids[hull]])).sum(-1))
         sign = torch.where(sign == 0, torch.ones_like(sign), sign)
-        end = end.index_put((hull_t,), n * sign[:, None])
+        end = end.index_put((torch.from_numpy(hull),), n * sign[:, None])
     sample = torch.where(is_ray[:, None], start + ray_length * end, 0.5 * (start + end))
-    return DualEdges(start, end, sample, is_ray, cc)
+    return DualEdges(start, end, sample, is_ray)
 
 
-def existing_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, edges: DualEdges,
-                    neighbours: Csr, ray_length: float) -> torch.Tensor:
-    """(F, 3) float64 per-vertex delta of every WDT face (distance of its dual-edge sample to the nearest
-    cached bisector plane of the vertex's reduced cell); `ray_length` where a vertex has no such plane."""
+def _numpy_edges(pd: PowerDiagram, ray_length: float):
+    """(F, 3) start, (F, 3) end (ray direction for hull faces), (F, 3) sample of every dual edge (float64)."""
+    start = pd.orthocentres[pd.face_tets[:, 0]]
+    hull = pd.is_hull[:, None]
+    end = np.where(hull, pd.ray_dirs, pd.orthocentres[np.maximum(pd.face_tets[:, 1], 0)])
+    sample = np.where(hull, start + ray_length * end, 0.5 * (start + end))
+    return start, end, sample
+
+
+def existing_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, neighbours: Csr,
+                    ray_length: float, upper: float | None = None) -> torch.Tensor:
+    """(F, 3) float64 per-vertex delta of every WDT face: distance of its dual-edge sample to the nearest
+    cached bisector plane of the vertex's reduced cell; `ray_length` where a vertex has no such plane.
+
+    Faces whose mean delta is at least `upper` (where Lambda_wdt's clamp stops every gradient) keep the
+    native value without a gradient; the others are recomputed in torch.
+    """
     p = native.as_points(points)
     w = native.as_weights(weights, len(p))
-    s = np.ascontiguousarray(edges.sample.detach().numpy())
-    j = native.nearest_planes_raw(p, w, pd.faces, s, neighbours.offsets, neighbours.indices)
-    faces = torch.from_numpy(pd.faces).long()
-    jt = torch.from_numpy(j).long()
+    _, _, sample = _numpy_edges(pd, ray_length)
+    j, dist = native.nearest_planes_raw(p, w, pd.faces, sample, neighbours.offsets, neighbours.indices)
+    dist = np.where(j >= 0, dist, ray_length)
+    out = torch.from_numpy(dist)
+    active = np.arange(len(pd.faces)) if upper is None else np.flatnonzero(dist.mean(1) < upper)
+    if len(active) == 0:
+        return out
+    edges = dual_edges(points, weights, pd, active, ray_length)
+    faces = torch.from_numpy(pd.faces[active]).long()
+    jt = torch.from_numpy(j[active]).long()
     valid = jt >= 0
     jj = torch.where(valid, jt, faces)  # a harmless stand-in index where there is none, masked below
     d = geometry.bisector_distance(points[faces], weights[faces], points[jj], weights[jj],
                                    edges.sample[:, None, :].expand(-1, 3, -1))
-    return torch.where(valid, d, torch.full_like(d, ray_length))
+    d = torch.where(valid, d, torch.full_like(d, ray_length))
+    return out.index_put((torch.from_numpy(active),), d)
 
 
-def nonexisting_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, edges: DualEdges,
-                       faces: np.ndarray, ray_length: float) -> torch.Tensor:
+def nonexisting_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, faces: np.ndarray,
+                       ray_length: float, band: float | None = None) -> torch.Tensor:
     """(C, 3) float64 per-vertex distance between each candidate's dual line and the vertex's power cell
     (0 where the line crosses it). Candidates must not be WDT faces and their vertices must own cells.
-    Collinear or coincident candidates get `ray_length` (no gradient)."""
+    Collinear or coincident candidates get `ray_length` (no gradient). Faces whose mean distance is at
+    least `band` keep the native value without a gradient (Lambda_wdt < sigmoid(-alpha band) there)."""
     out = torch.full((len(faces), 3), float(ray_length), dtype=torch.float64)
     if len(faces) == 0:
         return out
@@ -127,25 +154,35 @@ def nonexisting_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDia
     e1 = p64[faces[:, 1]] - p64[faces[:, 0]]
     e2 = p64[faces[:, 2]] - p64[faces[:, 0]]
     area2 = (np.cross(e1, e2) ** 2).sum(1)
-    ok = area2 > 1e-12 * (e1 ** 2).sum(1) * (e2 ** 2).sum(1)
-    good = np.flatnonzero(ok)
+    good = np.flatnonzero(area2 > 1e-12 * (e1 ** 2).sum(1) * (e2 ** 2).sum(1))
     if len(good) == 0:
         return out
     fg = np.ascontiguousarray(faces[good], dtype=np.int32)
-    origin, direction, _ = geometry.dual_lines(points, weights, torch.from_numpy(fg).long())
-    edge, crosses = native.nearest_cell_edges_raw(
-        p64, w64, fg, np.ascontiguousarray(origin.detach().numpy()),
-        np.ascontiguousarray(direction.detach().numpy()), pd.point_faces.offsets, pd.point_faces.indices,
-        np.ascontiguousarray(edges.start.detach().numpy()), np.ascontiguousarray(edges.end.detach().numpy()),
-        np.ascontiguousarray(pd.is_hull, dtype=np.uint8), pd.point_neighbors.offsets, pd.point_neighbors.indices)
-    et = torch.from_numpy(edge).long()
+    with torch.no_grad():
+        origin, direction, _ = geometry.dual_lines(torch.from_numpy(p64), torch.from_numpy(w64),
+                                                   torch.from_numpy(fg).long())
+    start, end, _ = _numpy_edges(pd, ray_length)
+    edge, crosses, dist = native.nearest_cell_edges_raw(
+        p64, w64, fg, origin.numpy(), direction.numpy(), pd.point_faces.offsets, pd.point_faces.indices,
+        start, end, pd.is_hull.astype(np.uint8), pd.point_neighbors.offsets, pd.point_neighbors.indices)
+    dist = np.where((edge >= 0) | (crosses > 0), dist, ray_length)
+    out = out.index_put((torch.from_numpy(good),), torch.from_numpy(dist))
+    sel = np.arange(len(good)) if band is None else np.flatnonzero(dist.mean(1) < band)
+    # Only elements with a gradient are recomputed: an edge was chosen and the line misses the cell.
+    sel = sel[((edge[sel] >= 0) & (crosses[sel] == 0)).any(1)]
+    if len(sel) == 0:
+        return out
+    o, u, _ = geometry.dual_lines(points, weights, torch.from_numpy(fg[sel]).long())
+    et = edge[sel]
     has_edge = et >= 0
-    ee = et.clamp_min(0)
-    d = geometry.line_segment_distance(origin[:, None, :].expand(-1, 3, -1), direction[:, None, :].expand(-1, 3, -1),
-                                       edges.start[ee], edges.end[ee], edges.is_ray[ee])
-    d = torch.where(has_edge, d, torch.full_like(d, ray_length))
-    d = torch.where(torch.from_numpy(crosses.astype(bool)), torch.zeros_like(d), d)
-    return out.index_put((torch.from_numpy(good),), d)
+    used, inverse = np.unique(np.maximum(et, 0), return_inverse=True)
+    edges = dual_edges(points, weights, pd, used, ray_length)
+    inv = torch.from_numpy(inverse.reshape(-1, 3))
+    d = geometry.line_segment_distance(o[:, None, :].expand(-1, 3, -1), u[:, None, :].expand(-1, 3, -1),
+                                       edges.start[inv], edges.end[inv], edges.is_ray[inv])
+    keep = torch.from_numpy(has_edge & (crosses[sel] == 0))
+    d = torch.where(keep, d, torch.from_numpy(dist[sel]))
+    return out.index_put((torch.from_numpy(good[sel]),), d)
 
 
 def dmin(values: torch.Tensor, alpha: float) -> torch.Tensor:
@@ -195,8 +232,20 @@ class ProbabilityState:
         return self.cache.num_points
 
 
+@contextmanager
+def _stage(timings: dict | None, name: str):
+    """Adds the wall time of the block to timings[name] (seconds) when timings is a dict."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        if timings is not None:
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+
+
 def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch.Tensor | None,
-                       state: ProbabilityState, extra_candidates: np.ndarray | None = None) -> FaceProbabilities:
+                       state: ProbabilityState, extra_candidates: np.ndarray | None = None,
+                       timings: dict | None = None) -> FaceProbabilities:
     """One full differentiable pass; updates `state` (cache and candidates grow).
 
     Args:
@@ -204,36 +253,45 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
             None to score existence only (prob_real = 1).
         state: the phase's `ProbabilityState` over the same N points.
         extra_candidates: optional (M, 3) ints added to the candidates before scoring.
+        timings: optional dict that receives the seconds spent per stage (wdt, power_diagram, candidates,
+            knn, existing, nonexisting, probabilities).
     """
     cfg = state.config
     n = len(points)
     if n != state.num_points:
         raise ValueError(f"the phase state was made for {state.num_points} points, got {n}; start a new phase")
-    tri = triangulate(points, weights)
-    pd = PowerDiagram(points, weights, tri.tets, tri.neighbors)
-    cache = state.cache.update(pd.point_neighbors)
-    state.candidates.add(pd.faces)
-    if extra_candidates is not None:
-        state.candidates.add(extra_candidates)
+    with _stage(timings, "wdt"):
+        tri = triangulate(points, weights)
+    with _stage(timings, "power_diagram"):
+        pd = PowerDiagram(points, weights, tri.tets, tri.neighbors)
+    with _stage(timings, "candidates"):
+        cache = state.cache.update(pd.point_neighbors)
+        wdt_keys = np.sort(face_keys(pd.faces, n))
+        state.candidates.add_sorted_keys(wdt_keys)
+        if extra_candidates is not None:
+            state.candidates.add(extra_candidates)
     if cfg.knn_interval and state.passes % cfg.knn_interval == 0:
-        r = None if reals is None else reals.detach().cpu().numpy()
-        state.candidates.add(knn_triples(pd.points, r, ~pd.hidden, cfg.knn_k, cfg.knn_thresholds))
+        with _stage(timings, "knn"):
+            r = None if reals is None else reals.detach().cpu().numpy()
+            state.candidates.add(knn_triples(pd.points, r, ~pd.hidden, cfg.knn_k, cfg.knn_thresholds))
     state.passes += 1
 
-    edges = dual_edges(points, weights, pd, cfg.ray)
-    per_vertex = existing_deltas(points, weights, pd, edges, cache, cfg.ray)
-    delta_wdt = per_vertex.mean(1)
+    with _stage(timings, "existing"):
+        # Above 10/alpha Lambda_wdt's clamp stops gradients; the power-cell factor needs them all.
+        upper = None if cfg.power_cell_factor or cfg.active_band is None else 10.0 / cfg.alpha
+        per_vertex = existing_deltas(points, weights, pd, cache, cfg.ray, upper)
+        delta_wdt = per_vertex.mean(1)
 
-    # Candidates not in the WDT with all three vertices owning a power cell.
-    cand = state.candidates.faces
-    wdt_keys = np.sort(face_keys(pd.faces, n))
-    ck = state.candidates.keys
-    pos = np.searchsorted(wdt_keys, ck).clip(max=len(wdt_keys) - 1)
-    not_wdt = wdt_keys[pos] != ck
-    scored = not_wdt & ~pd.hidden[cand].any(1)
-    cand = cand[scored]
-    delta_non = -nonexisting_deltas(points, weights, pd, edges, cand, cfg.ray).mean(1)
+    with _stage(timings, "nonexisting"):
+        # Candidates not in the WDT with all three vertices owning a power cell.
+        ck = state.candidates.keys
+        pos = np.searchsorted(wdt_keys, ck).clip(max=len(wdt_keys) - 1)
+        cand = state.candidates.faces_of(ck[wdt_keys[pos] != ck])
+        cand = cand[~pd.hidden[cand].any(1)]
+        band = None if cfg.active_band is None else cfg.active_band / cfg.alpha
+        delta_non = -nonexisting_deltas(points, weights, pd, cand, cfg.ray, band).mean(1)
 
+    t_prob = time.perf_counter()
     faces = torch.from_numpy(np.concatenate([pd.faces.astype(np.int64), cand]))
     delta = torch.cat([delta_wdt, delta_non])
     in_wdt = torch.zeros(len(faces), dtype=torch.bool)
@@ -246,8 +304,11 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
     else:
         p_real = dmin(reals[faces].double(), cfg.alpha_real)
     dtype = points.dtype
-    return FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
-                             (p_wdt * p_real).to(dtype), pd)
+    out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
+                            (p_wdt * p_real).to(dtype), pd)
+    if timings is not None:
+        timings["probabilities"] = timings.get("probabilities", 0.0) + time.perf_counter() - t_prob
+    return out
 
 
 def _power_cell_factor(per_vertex: torch.Tensor, pd: PowerDiagram, faces: torch.Tensor, n: int,
@@ -284,16 +345,15 @@ def delta(points, weights, faces) -> torch.Tensor:
     cfg = ProbabilityConfig()
     tri = triangulate(points, weights)
     pd = PowerDiagram(points, weights, tri.tets, tri.neighbors)
-    edges = dual_edges(points, weights, pd, cfg.ray)
     ids = pd.face_ids(faces)
     out = torch.zeros(len(faces), dtype=torch.float64)
     in_wdt = np.flatnonzero(ids >= 0)
     if len(in_wdt):
-        per_vertex = existing_deltas(points, weights, pd, edges, pd.point_neighbors, cfg.ray)
+        per_vertex = existing_deltas(points, weights, pd, pd.point_neighbors, cfg.ray)
         out = out.index_put((torch.from_numpy(in_wdt),), per_vertex[torch.from_numpy(ids[in_wdt])].mean(1))
     other = np.flatnonzero((ids < 0) & ~pd.hidden[faces].any(1))
     if len(other):
-        d = -nonexisting_deltas(points, weights, pd, edges, faces[other], cfg.ray).mean(1)
+        d = -nonexisting_deltas(points, weights, pd, faces[other], cfg.ray).mean(1)
         out = out.index_put((torch.from_numpy(other),), d)
     return out.to(points.dtype)
 

@@ -70,9 +70,12 @@ class DMesh:
         """Starts a new optimisation phase: empty candidate set and neighbour cache."""
         self.state = ProbabilityState(len(self), self.config)
 
-    def face_probabilities(self, extra_candidates: np.ndarray | None = None) -> FaceProbabilities:
-        """Lambda of every scored face (WDT faces, then candidates); differentiable in all parameters."""
-        return face_probabilities(self.points, self.weights, self.reals, self.state, extra_candidates)
+    def face_probabilities(self, extra_candidates: np.ndarray | None = None,
+                           timings: dict | None = None) -> FaceProbabilities:
+        """Lambda of every scored face (WDT faces, then candidates); differentiable in all parameters.
+
+        `timings`, when a dict, receives seconds per stage (see `probability.face_probabilities`)."""
+        return face_probabilities(self.points, self.weights, self.reals, self.state, extra_candidates, timings)
 
     def power_diagram(self) -> PowerDiagram:
         return PowerDiagram.from_points(self.points.detach(), self.weights.detach())

@@ -65,18 +65,19 @@ void bind_argmin(nb::module_& m) {
         require(fn, "samples", samples, F, 3);
         require_index_range(fn, "faces", faces, N);
         require_csr<index_t>(fn, nbr_offsets, nbr_indices, N, N);
-        std::vector<index_t> out;
+        NearestPlaneResult out;
         {
           nb::gil_scoped_release release;
           out = nearest_planes(points.data(), weights.data(), index_t(N), faces.data(), samples.data(),
                                index_t(F), nbr_offsets.data(), nbr_indices.data());
         }
-        return to_numpy(std::move(out), {size_t(F), 3});
+        return nb::make_tuple(to_numpy(std::move(out.neighbour), {size_t(F), 3}),
+                              to_numpy(std::move(out.dist), {size_t(F), 3}));
       },
       nb::arg("points").noconvert(), nb::arg("weights").noconvert(), nb::arg("faces").noconvert(),
       nb::arg("samples").noconvert(), nb::arg("nbr_offsets").noconvert(), nb::arg("nbr_indices").noconvert(),
       "nearest_planes(points (N,3) f64, weights (N,) f64, faces (F,3) i32, samples (F,3) f64,\n"
-      "               nbr_offsets (N+1,) i32, nbr_indices (M,) i32) -> (F,3) i32\n\n"
+      "               nbr_offsets (N+1,) i32, nbr_indices (M,) i32) -> (neighbour (F,3) i32, dist (F,3) f64)\n\n"
       "Per face and vertex i, the neighbour j (not in the face) whose bisector plane is nearest to the\n"
       "face's sample point; -1 where there is none.");
 
@@ -109,7 +110,8 @@ void bind_argmin(nb::module_& m) {
                                  nbr_indices.data());
         }
         return nb::make_tuple(to_numpy(std::move(r.edge), {size_t(C), 3}),
-                              to_numpy(std::move(r.crosses), {size_t(C), 3}));
+                              to_numpy(std::move(r.crosses), {size_t(C), 3}),
+                              to_numpy(std::move(r.dist), {size_t(C), 3}));
       },
       nb::arg("points").noconvert(), nb::arg("weights").noconvert(), nb::arg("faces").noconvert(),
       nb::arg("line_origin").noconvert(), nb::arg("line_dir").noconvert(), nb::arg("pf_offsets").noconvert(),
@@ -117,7 +119,7 @@ void bind_argmin(nb::module_& m) {
       nb::arg("is_ray").noconvert(), nb::arg("nbr_offsets").noconvert(), nb::arg("nbr_indices").noconvert(),
       "nearest_cell_edges(points, weights, faces (C,3) i32, line_origin (C,3) f64, line_dir (C,3) f64,\n"
       "                   pf_offsets, pf_indices, edge_start (E,3) f64, edge_end (E,3) f64, is_ray (E,) u8,\n"
-      "                   nbr_offsets, nbr_indices) -> (edge (C,3) i32, crosses (C,3) u8)\n\n"
+      "                   nbr_offsets, nbr_indices) -> (edge (C,3) i32, crosses (C,3) u8, dist (C,3) f64)\n\n"
       "Per candidate face and vertex: 1 in `crosses` where the dual line passes through the vertex's power\n"
       "cell (distance 0), else the id of the cell's nearest edge (-1 if the cell has none).");
 

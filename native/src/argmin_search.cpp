@@ -63,11 +63,13 @@ bool line_crosses_cell(const real_t* P, const real_t* W, index_t i, const real_t
 
 }  // namespace
 
-std::vector<index_t> nearest_planes(const real_t* P, const real_t* W, index_t N, const index_t* faces,
-                                    const real_t* samples, index_t F, const index_t* nbr_offsets,
-                                    const index_t* nbr_indices) {
+NearestPlaneResult nearest_planes(const real_t* P, const real_t* W, index_t N, const index_t* faces,
+                                  const real_t* samples, index_t F, const index_t* nbr_offsets,
+                                  const index_t* nbr_indices) {
   (void)N;
-  std::vector<index_t> out(3 * static_cast<std::size_t>(F), kNone);
+  NearestPlaneResult out;
+  out.neighbour.assign(3 * static_cast<std::size_t>(F), kNone);
+  out.dist.assign(3 * static_cast<std::size_t>(F), std::numeric_limits<real_t>::infinity());
 #pragma omp parallel for schedule(dynamic, 1024)
   for (index_t f = 0; f < F; ++f) {
     const index_t* fv = faces + 3 * f;
@@ -93,7 +95,8 @@ std::vector<index_t> nearest_planes(const real_t* P, const real_t* W, index_t N,
           best_j = j;
         }
       }
-      out[3 * f + v] = best_j;
+      out.neighbour[3 * f + v] = best_j;
+      out.dist[3 * f + v] = best;
     }
   }
   return out;
@@ -108,6 +111,7 @@ CellEdgeResult nearest_cell_edges(const real_t* P, const real_t* W, index_t N, c
   CellEdgeResult r;
   r.edge.assign(3 * static_cast<std::size_t>(C), kNone);
   r.crosses.assign(3 * static_cast<std::size_t>(C), 0);
+  r.dist.assign(3 * static_cast<std::size_t>(C), 0.0);
 #pragma omp parallel for schedule(dynamic, 1024)
   for (index_t c = 0; c < C; ++c) {
     const real_t* o = line_origin + 3 * c;
@@ -129,6 +133,7 @@ CellEdgeResult nearest_cell_edges(const real_t* P, const real_t* W, index_t N, c
         }
       }
       r.edge[3 * c + v] = best_g;
+      r.dist[3 * c + v] = best;
     }
   }
   return r;

@@ -13,14 +13,19 @@ namespace dmesh {
 // For every face (F, 3) and each of its 3 vertices i: the neighbour j of i (from the CSR neighbour lists
 // nbr_offsets (N+1,), nbr_indices (M,)), with j not a vertex of the face, whose power bisector plane
 // H(i, j) is nearest to the face's sample point samples (F, 3). Returns (F, 3) point ids, kNone where i has
-// no admissible neighbour.
-std::vector<index_t> nearest_planes(const real_t* points, const real_t* weights, index_t N,
+// no admissible neighbour, and in dist (F, 3) that distance (infinity where kNone).
+struct NearestPlaneResult {
+  std::vector<index_t> neighbour;  // (F, 3)
+  std::vector<real_t> dist;        // (F, 3)
+};
+NearestPlaneResult nearest_planes(const real_t* points, const real_t* weights, index_t N,
                                     const index_t* faces, const real_t* samples, index_t F,
                                     const index_t* nbr_offsets, const index_t* nbr_indices);
 
 struct CellEdgeResult {
   std::vector<index_t> edge;     // (C, 3) id of the nearest power-diagram edge (a WDT face id), or kNone
   std::vector<std::uint8_t> crosses;  // (C, 3) 1 where the dual line passes through the power cell
+  std::vector<real_t> dist;       // (C, 3) the line-to-cell distance (0 where crosses, inf without edges)
 };
 
 // For every candidate face (C, 3) with dual line (origin (C, 3), unit direction (C, 3)) and each vertex

@@ -1,0 +1,522 @@
+"""Multi-view capture of a mesh: diffuse, depth and mask images from a ring of cameras (DESIGN.md 8.2).
+
+Shape letters: V views, H x W pixels (H = W = resolution), F faces.
+
+Rendering: OpenGL offscreen through pyrender's platform layer (OSMesa first, EGL if OSMesa cannot be
+loaded; set PYOPENGL_PLATFORM to force one). pyrender's own scene renderer is not used for the images,
+because it always rasterises with 4x multisampling, which blends values at silhouettes and at creases; a
+small shader pipeline here rasterises once per pixel centre (no multisampling, no culling, a float32
+depth buffer) and writes, per pixel, the camera-space depth and the id of the front-most face. The
+images follow from that exactly:
+
+- pixel (i, j), row i from the top, column j from the left, samples the ray through its centre, with
+  camera-space direction d_ij = (x_ndc * t, y_ndc * t, -1), t = tan(fov_y / 2) (aspect 1), where
+  x_ndc = 2 (j + 0.5) / W - 1 and y_ndc = 1 - 2 (i + 0.5) / H;
+- mask[i, j] = some face covers the pixel centre (OpenGL rasterisation rules, both windings; a centre
+  exactly on an edge shared by two faces goes to one of them by the top-left rule); geometry nearer than
+  the near plane is clipped;
+- depth[i, j] = -z_cam of the front-most face at the pixel centre (distance along the view axis, > 0),
+  0 where mask is False;
+- diffuse[i, j] = |n_f . d_ij / |d_ij||, where n_f = normalize((b - a) x (c - a)) is the flat unit normal
+  of that face (corners a, b, c, expressed in camera space) and d_ij as above; 0 where mask is False.
+  This is two-sided Lambert with albedo 1, a unit-intensity light at the camera centre (a headlight, no
+  falloff) and no ambient term: for the visible point p on the ray, the direction to the eye is
+  v = -p/|p| = -d_ij/|d_ij|, so the intensity is |n . v|. Values lie in [0, 1], float32. A zero-area face
+  gets diffuse 0. Depth comes from the rasteriser's perspective-correct float32 interpolation, diffuse
+  from float64 normals and rays rounded to float32; a CPU renderer sampling pixel centres the same way
+  should match to ~1e-5, except on pixels whose centre falls on a silhouette or crease edge.
+
+Cameras (`camera_rig`): views = n_el x n_az with n_el the largest divisor of `views` not above its square
+root (64 -> 8 x 8, 4 -> 2 x 2). Elevations are the centres of n_el equal bands over [-80, 80] degrees (for 8:
+-70, -50, ..., 70); azimuths are k * 360 / n_az degrees (plus a seeded offset when seed != 0). The world is
+Y-up: a camera at elevation e and azimuth a sits at distance * (cos e sin a, sin e, cos e cos a) and looks at
+the origin with +Y as its up hint (azimuth 0 is on +Z). Views are ordered elevation-major (all azimuths of
+the lowest ring first).
+
+Conventions: `world_to_camera` maps world to OpenGL camera space (the camera looks down -Z, +Y up, +X
+right); `projection` is the OpenGL perspective matrix (gluPerspective) with the vertical field of view
+`fov_y_degrees` (65 by default: a unit-radius object at distance 2 subtends 60 degrees, so it fits with
+about 10% margin; its silhouette spans 0.906 of the half-width), aspect 1, near = 0.05 * distance, far =
+50 * distance. Clip coordinates are projection @ world_to_camera @ [x, y, z, 1].
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import trimesh
+
+log = logging.getLogger(__name__)
+
+__all__ = ["MultiView", "capture", "camera_rig", "look_at", "perspective", "pixel_rays", "FOV_Y_DEGREES",
+           "gl_platform", "GLUnavailableError"]
+
+#: Default vertical field of view (degrees): fits a unit-radius object at distance 2 with ~10% margin.
+FOV_Y_DEGREES = 65.0
+#: Elevation range (degrees) whose equal bands' centres are the camera rings.
+ELEVATION_RANGE = (-80.0, 80.0)
+NEAR_FACTOR, FAR_FACTOR = 0.05, 50.0
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Cameras
+# ----------------------------------------------------------------------------------------------------------
+
+def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """World-to-camera (4, 4) float64 for an OpenGL camera at `eye` looking at `target` (camera -Z)."""
+    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
+    z = eye - target
+    z /= np.linalg.norm(z)
+    x = np.cross(up, z)
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("look_at: the view direction is parallel to the up vector")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = x, y, z
+    m[:3, 3] = -m[:3, :3] @ eye
+    return m
+
+
+def perspective(fov_y_degrees: float, aspect: float, near: float, far: float) -> np.ndarray:
+    """The OpenGL perspective projection (4, 4) float64 (gluPerspective; camera looks down -Z)."""
+    f = 1.0 / np.tan(np.radians(fov_y_degrees) / 2.0)
+    p = np.zeros((4, 4))
+    p[0, 0] = f / aspect
+    p[1, 1] = f
+    p[2, 2] = (far + near) / (near - far)
+    p[2, 3] = 2.0 * far * near / (near - far)
+    p[3, 2] = -1.0
+    return p
+
+
+def _grid_shape(views: int) -> tuple[int, int]:
+    n_el = max(d for d in range(1, int(np.sqrt(views)) + 1) if views % d == 0)
+    return n_el, views // n_el
+
+
+def camera_rig(views: int = 64, distance: float = 2.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The capture cameras (see the module docstring for the layout).
+
+    Returns:
+        world_to_camera: (V, 4, 4) float64.
+        angles: (V, 2) float64, (elevation, azimuth) of each view in degrees.
+    """
+    if views < 1:
+        raise ValueError(f"views must be >= 1, got {views}")
+    if not np.isfinite(distance) or distance <= 0:
+        raise ValueError(f"distance must be positive, got {distance}")
+    n_el, n_az = _grid_shape(int(views))
+    lo, hi = ELEVATION_RANGE
+    elev = lo + (hi - lo) * (np.arange(n_el) + 0.5) / n_el
+    offset = 0.0 if seed == 0 else float(np.random.default_rng(seed).uniform(0, 360.0 / n_az))
+    azim = offset + 360.0 * np.arange(n_az) / n_az
+    e, a = np.meshgrid(elev, azim, indexing="ij")
+    angles = np.stack([e.ravel(), a.ravel()], 1)
+    er, ar = np.radians(angles[:, 0]), np.radians(angles[:, 1])
+    eyes = distance * np.stack([np.cos(er) * np.sin(ar), np.sin(er), np.cos(er) * np.cos(ar)], 1)
+    w2c = np.stack([look_at(eye) for eye in eyes])
+    return w2c, angles
+
+
+def pixel_rays(resolution: int, fov_y_degrees: float) -> np.ndarray:
+    """Camera-space directions through the pixel centres, (H, W, 3) float64, z = -1 (not unit length)."""
+    t = np.tan(np.radians(fov_y_degrees) / 2.0)
+    c = (np.arange(resolution) + 0.5) / resolution
+    x = (2.0 * c - 1.0) * t
+    y = (1.0 - 2.0 * c) * t
+    d = np.empty((resolution, resolution, 3))
+    d[..., 0] = x[None, :]
+    d[..., 1] = y[:, None]
+    d[..., 2] = -1.0
+    return d
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Result
+# ----------------------------------------------------------------------------------------------------------
+
+@dataclass
+class MultiView:
+    """Captured views of a mesh (conventions in the module docstring).
+
+    Attributes:
+        diffuse: (V, H, W) float32 in [0, 1], |n . v| two-sided Lambert with a headlight; 0 on background.
+        depth: (V, H, W) float32, camera-space distance along the view axis (-z_cam); 0 on background.
+        mask: (V, H, W) bool, True where the mesh covers the pixel centre.
+        world_to_camera: (V, 4, 4) float64, OpenGL camera (looks down -Z).
+        projection: (4, 4) float64, OpenGL perspective projection shared by all views.
+        fov_y_degrees: vertical field of view.
+        resolution: H = W.
+    """
+
+    diffuse: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    world_to_camera: np.ndarray
+    projection: np.ndarray
+    fov_y_degrees: float
+    resolution: int
+
+    @property
+    def views(self) -> int:
+        return int(self.diffuse.shape[0])
+
+    @property
+    def camera_to_world(self) -> np.ndarray:
+        """(V, 4, 4) float64 camera poses (columns: camera axes and centre in world space)."""
+        return np.linalg.inv(self.world_to_camera)
+
+    def save(self, directory: str | os.PathLike) -> Path:
+        """Write `views.npz` (all arrays), `cameras.json` and PNG images for people into `directory`.
+
+        PNGs: `images/diffuse_XX.png` (8-bit grey), `images/depth_XX.png` (8-bit, near = bright, scaled per
+        view, background black), `images/mask_XX.png` and `diffuse_grid.png` (all diffuse views tiled). Only
+        `views.npz` is read back by `load`; the PNGs are lossy previews.
+        """
+        from PIL import Image
+
+        d = Path(directory)
+        (d / "images").mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(d / "views.npz", diffuse=self.diffuse, depth=self.depth, mask=self.mask,
+                            world_to_camera=self.world_to_camera, projection=self.projection,
+                            fov_y_degrees=np.float64(self.fov_y_degrees), resolution=np.int64(self.resolution))
+        (d / "cameras.json").write_text(json.dumps(self._cameras_dict(), indent=1) + "\n")
+        width = len(str(max(self.views - 1, 1)))
+        for k in range(self.views):
+            Image.fromarray(_to_u8(self.diffuse[k])).save(d / "images" / f"diffuse_{k:0{width}d}.png")
+            Image.fromarray(_depth_preview(self.depth[k], self.mask[k])).save(
+                d / "images" / f"depth_{k:0{width}d}.png")
+            Image.fromarray(self.mask[k].astype(np.uint8) * 255).save(d / "images" / f"mask_{k:0{width}d}.png")
+        Image.fromarray(_to_u8(_tile(self.diffuse))).save(d / "diffuse_grid.png")
+        return d
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike) -> "MultiView":
+        """Read a capture written by `save` (from its `views.npz`)."""
+        path = Path(directory) / "views.npz"
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such file (not a capture folder)")
+        with np.load(path) as z:
+            return cls(diffuse=z["diffuse"], depth=z["depth"], mask=z["mask"],
+                       world_to_camera=z["world_to_camera"], projection=z["projection"],
+                       fov_y_degrees=float(z["fov_y_degrees"]), resolution=int(z["resolution"]))
+
+    def _cameras_dict(self) -> dict:
+        c2w = self.camera_to_world
+        return {
+            "convention": "OpenGL: camera looks down -Z, +Y up, +X right; clip = projection @ "
+                          "world_to_camera @ [x, y, z, 1]; pixel (i, j) = row i from the top, column j "
+                          "from the left, sampled at its centre",
+            "depth": "camera-space distance along the view axis (-z_cam), 0 on background",
+            "diffuse": "|n_f . d| with n_f the flat unit face normal and d the unit ray through the pixel "
+                       "centre (two-sided Lambert, light at the camera centre, albedo 1), 0 on background",
+            "fov_y_degrees": self.fov_y_degrees,
+            "resolution": self.resolution,
+            "projection": self.projection.tolist(),
+            "views": [{"index": k, "world_to_camera": self.world_to_camera[k].tolist(),
+                       "camera_to_world": c2w[k].tolist(), "eye": c2w[k, :3, 3].tolist()}
+                      for k in range(self.views)],
+        }
+
+
+def _to_u8(img: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def _depth_preview(depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    out = np.zeros(depth.shape, np.uint8)
+    if mask.any():
+        lo, hi = float(depth[mask].min()), float(depth[mask].max())
+        out[mask] = _to_u8(1.0 - 0.8 * (depth[mask] - lo) / max(hi - lo, 1e-12))
+    return out
+
+
+def _tile(images: np.ndarray) -> np.ndarray:
+    n, h, w = images.shape
+    cols = _grid_shape(n)[1]
+    rows = -(-n // cols)
+    grid = np.zeros((rows * h, cols * w), images.dtype)
+    for k in range(n):
+        r, c = divmod(k, cols)
+        grid[r * h:(r + 1) * h, c * w:(c + 1) * w] = images[k]
+    return grid
+
+
+# ----------------------------------------------------------------------------------------------------------
+# OpenGL
+# ----------------------------------------------------------------------------------------------------------
+
+class GLUnavailableError(RuntimeError):
+    """No headless OpenGL platform (OSMesa or EGL) could be started."""
+
+
+_PLATFORM: str | None = None
+#: One GL context renders at a time in a process (contexts and PyOpenGL state are not shared safely).
+_GL_LOCK = threading.RLock()
+
+_VERT = """#version 330 core
+layout(location = 0) in vec3 position;
+uniform mat4 world_to_camera;
+uniform mat4 projection;
+out float v_depth;
+void main() {
+    vec4 cam = world_to_camera * vec4(position, 1.0);
+    v_depth = -cam.z;
+    gl_Position = projection * cam;
+}
+"""
+
+_FRAG = """#version 330 core
+in float v_depth;
+layout(location = 0) out vec4 out_value;
+void main() {
+    out_value = vec4(v_depth, float(gl_PrimitiveID + 1), 0.0, 1.0);
+}
+"""
+
+
+def gl_platform() -> str:
+    """Import PyOpenGL on a headless platform and return its name ("osmesa" or "egl").
+
+    PYOPENGL_PLATFORM is honoured when set; otherwise OSMesa is tried first and EGL second (Mesa's
+    software EGL device works without a GPU). Raises GLUnavailableError naming each failure.
+    """
+    global _PLATFORM
+    if _PLATFORM is not None:
+        return _PLATFORM
+    forced = os.environ.get("PYOPENGL_PLATFORM")
+    candidates = [forced] if forced else ["osmesa", "egl"]
+    errors = []
+    for name in candidates:
+        os.environ["PYOPENGL_PLATFORM"] = name
+        try:
+            _make_platform(name, 8, 8).delete_context()
+            _PLATFORM = name
+            log.debug("OpenGL platform: %s", name)
+            return name
+        except Exception as exc:  # a missing library shows up as ImportError, OSError or others
+            errors.append(f"{name}: {type(exc).__name__}: {' '.join(str(exc).split())}")
+            # PyOpenGL binds its platform on first import: forget it so the next candidate can load.
+            for mod in [m for m in sys.modules if m == "OpenGL" or m.startswith("OpenGL.")
+                        or m == "pyrender" or m.startswith("pyrender.")]:
+                del sys.modules[mod]
+    if not forced:
+        os.environ.pop("PYOPENGL_PLATFORM", None)
+    raise GLUnavailableError("no headless OpenGL platform works (install libosmesa6 or libegl1): " + "; ".join(errors))
+
+
+def _make_platform(name: str, width: int, height: int):
+    """A current pyrender platform (OpenGL 3.3 core context) of the given name."""
+    if name == "osmesa":
+        from pyrender.platforms.osmesa import OSMesaPlatform
+        plat = OSMesaPlatform(width, height)
+    elif name == "egl":
+        from pyrender.platforms.egl import EGLPlatform
+        plat = EGLPlatform(width, height)
+    else:
+        raise RuntimeError(f"unsupported PYOPENGL_PLATFORM {name!r} (use osmesa or egl)")
+    plat.init_context()
+    plat.make_current()
+    return plat
+
+
+class _Rasterizer:
+    """Face-id and depth rasteriser in an offscreen framebuffer (one context per instance)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, resolution: int):
+        platform = gl_platform()
+        self.res = resolution
+        self.plat = _make_platform(platform, resolution, resolution)
+        from OpenGL import GL as gl
+        self.gl = gl
+        try:
+            self._setup(vertices, faces)
+        except BaseException:
+            self.close()
+            raise
+
+    def _setup(self, vertices, faces):
+        gl, r = self.gl, self.res
+        self.program = gl.glCreateProgram()
+        for kind, src in ((gl.GL_VERTEX_SHADER, _VERT), (gl.GL_FRAGMENT_SHADER, _FRAG)):
+            sh = gl.glCreateShader(kind)
+            gl.glShaderSource(sh, src)
+            gl.glCompileShader(sh)
+            if not gl.glGetShaderiv(sh, gl.GL_COMPILE_STATUS):
+                raise RuntimeError(f"shader compile failed: {gl.glGetShaderInfoLog(sh)!r}")
+            gl.glAttachShader(self.program, sh)
+        gl.glLinkProgram(self.program)
+        if not gl.glGetProgramiv(self.program, gl.GL_LINK_STATUS):
+            raise RuntimeError(f"shader link failed: {gl.glGetProgramInfoLog(self.program)!r}")
+
+        self.fbo = gl.glGenFramebuffers(1)
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self.fbo)
+        self.color = gl.glGenRenderbuffers(1)
+        gl.glBindRenderbuffer(gl.GL_RENDERBUFFER, self.color)
+        gl.glRenderbufferStorage(gl.GL_RENDERBUFFER, gl.GL_RGBA32F, r, r)
+        gl.glFramebufferRenderbuffer(gl.GL_FRAMEBUFFER, gl.GL_COLOR_ATTACHMENT0, gl.GL_RENDERBUFFER, self.color)
+        self.depth_rb = gl.glGenRenderbuffers(1)
+        gl.glBindRenderbuffer(gl.GL_RENDERBUFFER, self.depth_rb)
+        gl.glRenderbufferStorage(gl.GL_RENDERBUFFER, gl.GL_DEPTH_COMPONENT32F, r, r)
+        gl.glFramebufferRenderbuffer(gl.GL_FRAMEBUFFER, gl.GL_DEPTH_ATTACHMENT, gl.GL_RENDERBUFFER,
+                                     self.depth_rb)
+        status = gl.glCheckFramebufferStatus(gl.GL_FRAMEBUFFER)
+        if status != gl.GL_FRAMEBUFFER_COMPLETE:
+            raise RuntimeError(f"offscreen framebuffer incomplete (status {status})")
+
+        self.vao = gl.glGenVertexArrays(1)
+        gl.glBindVertexArray(self.vao)
+        self.vbo, self.ebo = gl.glGenBuffers(2)
+        v = np.ascontiguousarray(vertices, np.float32)
+        f = np.ascontiguousarray(faces, np.uint32)
+        gl.glBindBuffer(gl.GL_ARRAY_BUFFER, self.vbo)
+        gl.glBufferData(gl.GL_ARRAY_BUFFER, v.nbytes, v, gl.GL_STATIC_DRAW)
+        gl.glEnableVertexAttribArray(0)
+        gl.glVertexAttribPointer(0, 3, gl.GL_FLOAT, gl.GL_FALSE, 0, None)
+        gl.glBindBuffer(gl.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
+        gl.glBufferData(gl.GL_ELEMENT_ARRAY_BUFFER, f.nbytes, f, gl.GL_STATIC_DRAW)
+        self.count = int(f.size)
+
+        gl.glViewport(0, 0, self.res, self.res)
+        gl.glDisable(gl.GL_CULL_FACE)
+        gl.glDisable(gl.GL_MULTISAMPLE)
+        gl.glDisable(gl.GL_BLEND)
+        gl.glDisable(gl.GL_DITHER)
+        gl.glEnable(gl.GL_DEPTH_TEST)
+        gl.glDepthFunc(gl.GL_LESS)
+        gl.glUseProgram(self.program)
+        self.loc_w2c = gl.glGetUniformLocation(self.program, "world_to_camera")
+        self.loc_proj = gl.glGetUniformLocation(self.program, "projection")
+
+    def render(self, world_to_camera: np.ndarray, projection: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rasterise one view: (H, W) float32 depth (-z_cam, 0 = none) and (H, W) int64 face id (-1 = none)."""
+        gl, r = self.gl, self.res
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self.fbo)
+        gl.glClearColor(0.0, 0.0, 0.0, 0.0)
+        gl.glClearDepth(1.0)
+        gl.glClear(gl.GL_COLOR_BUFFER_BIT | gl.GL_DEPTH_BUFFER_BIT)
+        # GL matrices are column-major: upload the transpose flag so rows stay rows.
+        gl.glUniformMatrix4fv(self.loc_w2c, 1, gl.GL_TRUE, np.ascontiguousarray(world_to_camera, np.float32))
+        gl.glUniformMatrix4fv(self.loc_proj, 1, gl.GL_TRUE, np.ascontiguousarray(projection, np.float32))
+        gl.glDrawElements(gl.GL_TRIANGLES, self.count, gl.GL_UNSIGNED_INT, None)
+        gl.glFinish()
+        gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
+        buf = gl.glReadPixels(0, 0, r, r, gl.GL_RGBA, gl.GL_FLOAT)
+        img = np.frombuffer(buf, np.float32).reshape(r, r, 4)[::-1]  # GL rows start at the bottom
+        depth = np.ascontiguousarray(img[..., 0])
+        face = img[..., 1].astype(np.int64) - 1
+        depth[face < 0] = 0.0
+        return depth, face
+
+    def close(self):
+        plat, self.plat = getattr(self, "plat", None), None
+        if plat is None:
+            return
+        try:
+            gl = self.gl
+            for name, fn in (("vbo", lambda x: gl.glDeleteBuffers(1, [x])),
+                             ("ebo", lambda x: gl.glDeleteBuffers(1, [x])),
+                             ("vao", lambda x: gl.glDeleteVertexArrays(1, [x])),
+                             ("color", lambda x: gl.glDeleteRenderbuffers(1, [x])),
+                             ("depth_rb", lambda x: gl.glDeleteRenderbuffers(1, [x])),
+                             ("fbo", lambda x: gl.glDeleteFramebuffers(1, [x]))):
+                if hasattr(self, name):
+                    fn(getattr(self, name))
+            if hasattr(self, "program"):
+                gl.glDeleteProgram(self.program)
+        finally:
+            plat.delete_context()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Capture
+# ----------------------------------------------------------------------------------------------------------
+
+def _unit_face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    tri = vertices[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def _render_views(v, f, normals, w2c, proj, rays, diffuse, depth, mask, callback) -> None:
+    """Fill diffuse, depth and mask (V, H, W) in place, one view at a time."""
+    views, resolution = diffuse.shape[:2]
+    rast = _Rasterizer(v, f, resolution)
+    try:
+        for k in range(views):
+            d, face = rast.render(w2c[k], proj)
+            hit = face >= 0
+            n_cam = normals[face[hit]] @ w2c[k, :3, :3].T
+            diffuse[k][hit] = np.abs(np.einsum("ij,ij->i", n_cam, rays[hit]))
+            depth[k] = d
+            mask[k] = hit
+            if callback is not None:
+                callback(k + 1, views)
+    finally:
+        rast.close()
+
+
+def capture(mesh: trimesh.Trimesh, views: int = 64, resolution: int = 256, distance: float = 2.0,
+            seed: int = 0, *, fov_y_degrees: float = FOV_Y_DEGREES,
+            callback: Callable[[int, int], None] | None = None) -> MultiView:
+    """Render diffuse, depth and mask images of `mesh` from the camera rig (module docstring).
+
+    The mesh is used as given (normalise it first for the standard frame). Deterministic: the same mesh
+    and settings give identical arrays.
+
+    Args:
+        mesh: vertices (V, 3), faces (F, 3), F >= 1, finite, F < 2^24.
+        views: number of cameras (64: 8 elevations x 8 azimuths).
+        resolution: image side H = W in pixels.
+        distance: camera distance from the origin.
+        seed: 0 for the canonical rig, else a seeded azimuth offset of the whole rig.
+        fov_y_degrees: vertical field of view.
+        callback: called as callback(done, views) after each view (progress bars live in the CLI).
+
+    Returns:
+        A `MultiView` with (views, resolution, resolution) images.
+
+    Raises:
+        ValueError: empty or non-finite mesh, bad settings, or a mesh that no camera sees.
+        GLUnavailableError: neither OSMesa nor EGL can be started.
+    """
+    v = np.asarray(mesh.vertices, np.float64)
+    f = np.asarray(mesh.faces, np.int64)
+    if len(f) == 0 or len(v) == 0:
+        raise ValueError("cannot capture a mesh without faces")
+    if not np.isfinite(v).all():
+        raise ValueError("cannot capture a mesh with NaN or infinite vertices")
+    if len(f) >= 1 << 24:
+        raise ValueError(f"too many faces for the capture's float face ids: {len(f)} >= 2^24")
+    resolution, views = int(resolution), int(views)
+    if resolution < 1 or resolution > 8192:
+        raise ValueError(f"resolution must be in [1, 8192], got {resolution}")
+    if not 0 < fov_y_degrees < 180:
+        raise ValueError(f"fov_y_degrees must be in (0, 180), got {fov_y_degrees}")
+    w2c, _ = camera_rig(views, distance, seed)
+    proj = perspective(fov_y_degrees, 1.0, NEAR_FACTOR * distance, FAR_FACTOR * distance)
+    rays = pixel_rays(resolution, fov_y_degrees)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    normals = _unit_face_normals(v, f)
+
+    diffuse = np.zeros((views, resolution, resolution), np.float32)
+    depth = np.zeros((views, resolution, resolution), np.float32)
+    mask = np.zeros((views, resolution, resolution), bool)
+    with _GL_LOCK:
+        _render_views(v, f, normals, w2c, proj, rays, diffuse, depth, mask, callback)
+    if not mask.any():
+        lo, hi = v.min(0), v.max(0)
+        raise ValueError(f"no camera sees the mesh (bounds {np.round(lo, 3).tolist()} to "
+                         f"{np.round(hi, 3).tolist()}; cameras at distance {distance} look at the origin)")
+    log.debug("captured %d views at %dx%d (%d faces)", views, resolution, resolution, len(f))
+    return MultiView(diffuse=diffuse, depth=depth, mask=mask, world_to_camera=w2c, projection=proj,
+                     fov_y_degrees=float(fov_y_degrees), resolution=resolution)
