@@ -43,7 +43,7 @@ class ProbabilityConfig:
     knn_interval: int = 10         # add kNN candidate triples every this many passes (0: never)
     knn_k: int = 8                 # neighbours per point for kNN triples
     knn_thresholds: tuple = (0.0, 0.2, 0.4, 0.6, 0.8)  # real-value thresholds of the kNN passes
-    active_band: float | None = 15.0  # non-WDT faces with Delta < -active_band/alpha get no gradient
+    active_band: float | None = 10.0  # non-WDT faces with Delta < -active_band/alpha get no gradient
     power_cell_factor: bool = False  # multiply by the power-cell existence factor (paper Eq. 10)
     alpha_pc: float = 1000.0       # sigmoid sharpness of the power-cell factor
     eps_pc: float = 1e-4           # threshold of the power-cell factor
@@ -113,24 +113,31 @@ def _numpy_edges(pd: PowerDiagram, ray_length: float):
 
 
 def existing_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, neighbours: Csr,
-                    ray_length: float, upper: float | None = None) -> torch.Tensor:
-    """(F, 3) float64 per-vertex delta of every WDT face: distance of its dual-edge sample to the nearest
-    cached bisector plane of the vertex's reduced cell; `ray_length` where a vertex has no such plane.
+                    ray_length: float, upper: float | None = None,
+                    face_ids: np.ndarray | None = None) -> torch.Tensor:
+    """(K, 3) float64 per-vertex delta of WDT faces `face_ids` ((K,) ints; None: all F faces): distance of
+    the face's dual-edge sample to the nearest cached bisector plane of the vertex's reduced cell;
+    `ray_length` where a vertex has no such plane.
 
     Faces whose mean delta is at least `upper` (where Lambda_wdt's clamp stops every gradient) keep the
     native value without a gradient; the others are recomputed in torch.
     """
     p = native.as_points(points)
     w = native.as_weights(weights, len(p))
-    _, _, sample = _numpy_edges(pd, ray_length)
-    j, dist = native.nearest_planes_raw(p, w, pd.faces, sample, neighbours.offsets, neighbours.indices)
+    ids = np.arange(len(pd.faces)) if face_ids is None else np.asarray(face_ids, dtype=np.int64)
+    faces_np = pd.faces if face_ids is None else pd.faces[ids]
+    start = pd.orthocentres[pd.face_tets[ids, 0]]
+    hull = pd.is_hull[ids, None]
+    other = pd.orthocentres[np.maximum(pd.face_tets[ids, 1], 0)]
+    sample = np.where(hull, start + ray_length * pd.ray_dirs[ids], 0.5 * (start + other))
+    j, dist = native.nearest_planes_raw(p, w, faces_np, sample, neighbours.offsets, neighbours.indices)
     dist = np.where(j >= 0, dist, ray_length)
     out = torch.from_numpy(dist)
-    active = np.arange(len(pd.faces)) if upper is None else np.flatnonzero(dist.mean(1) < upper)
+    active = np.arange(len(ids)) if upper is None else np.flatnonzero(dist.mean(1) < upper)
     if len(active) == 0:
         return out
-    edges = dual_edges(points, weights, pd, active, ray_length)
-    faces = torch.from_numpy(pd.faces[active]).long()
+    edges = dual_edges(points, weights, pd, ids[active], ray_length)
+    faces = torch.from_numpy(faces_np[active]).long()
     jt = torch.from_numpy(j[active]).long()
     valid = jt >= 0
     jj = torch.where(valid, jt, faces)  # a harmless stand-in index where there is none, masked below
@@ -349,8 +356,8 @@ def delta(points, weights, faces) -> torch.Tensor:
     out = torch.zeros(len(faces), dtype=torch.float64)
     in_wdt = np.flatnonzero(ids >= 0)
     if len(in_wdt):
-        per_vertex = existing_deltas(points, weights, pd, pd.point_neighbors, cfg.ray)
-        out = out.index_put((torch.from_numpy(in_wdt),), per_vertex[torch.from_numpy(ids[in_wdt])].mean(1))
+        per_vertex = existing_deltas(points, weights, pd, pd.point_neighbors, cfg.ray, face_ids=ids[in_wdt])
+        out = out.index_put((torch.from_numpy(in_wdt),), per_vertex.mean(1))
     other = np.flatnonzero((ids < 0) & ~pd.hidden[faces].any(1))
     if len(other):
         d = -nonexisting_deltas(points, weights, pd, faces[other], cfg.ray).mean(1)

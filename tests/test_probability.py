@@ -67,7 +67,10 @@ def test_delta_gradients_match_central_finite_differences():
 def test_probability_gradients_match_finite_differences_with_fixed_state():
     p, w = _small_config(seed=5, n=60)
     r = np.random.default_rng(5).random(60)
-    dm = dmesh.DMesh(p, w, r, dtype=torch.float64)
+    # active_band=None: every face carries its exact gradient (the default drops the gradient of faces with
+    # Lambda_wdt < sigmoid(-10), an approximation this test would see).
+    cfg = probability.ProbabilityConfig(active_band=None)
+    dm = dmesh.DMesh(p, w, r, config=cfg, dtype=torch.float64)
     base = dm.face_probabilities()  # fills the phase's candidates and cache
     upstream = torch.from_numpy(np.random.default_rng(0).random(len(base.prob)))
 
