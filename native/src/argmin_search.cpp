@@ -70,7 +70,7 @@ NearestPlaneResult nearest_planes(const real_t* P, const real_t* W, index_t N, c
   NearestPlaneResult out;
   out.neighbour.assign(3 * static_cast<std::size_t>(F), kNone);
   out.dist.assign(3 * static_cast<std::size_t>(F), std::numeric_limits<real_t>::infinity());
-#pragma omp parallel for schedule(dynamic, 1024)
+#pragma omp parallel for schedule(dynamic, 1024) if (F > kParallelMin)
   for (index_t f = 0; f < F; ++f) {
     const index_t* fv = faces + 3 * f;
     const real_t* s = samples + 3 * f;
@@ -112,7 +112,7 @@ CellEdgeResult nearest_cell_edges(const real_t* P, const real_t* W, index_t N, c
   r.edge.assign(3 * static_cast<std::size_t>(C), kNone);
   r.crosses.assign(3 * static_cast<std::size_t>(C), 0);
   r.dist.assign(3 * static_cast<std::size_t>(C), 0.0);
-#pragma omp parallel for schedule(dynamic, 1024)
+#pragma omp parallel for schedule(dynamic, 1024) if (C > kParallelMin)
   for (index_t c = 0; c < C; ++c) {
     const real_t* o = line_origin + 3 * c;
     const real_t* u = line_dir + 3 * c;
@@ -144,7 +144,7 @@ Csr merge_csr(const index_t* off_a, const index_t* idx_a, const index_t* off_b, 
   std::vector<index_t> len(rows);
   std::vector<index_t> tmp(static_cast<std::size_t>(off_a[rows]) + off_b[rows]);
   // Merge each row into tmp at offset off_a[r] + off_b[r], then compact.
-#pragma omp parallel for schedule(dynamic, 512)
+#pragma omp parallel for schedule(dynamic, 512) if (rows > kParallelMin)
   for (index_t r = 0; r < rows; ++r) {
     index_t* dst = tmp.data() + off_a[r] + off_b[r];
     index_t* end = std::set_union(idx_a + off_a[r], idx_a + off_a[r + 1], idx_b + off_b[r], idx_b + off_b[r + 1], dst);
@@ -154,7 +154,7 @@ Csr merge_csr(const index_t* off_a, const index_t* idx_a, const index_t* off_b, 
   out.offsets.assign(rows + 1, 0);
   for (index_t r = 0; r < rows; ++r) out.offsets[r + 1] = out.offsets[r] + len[r];
   out.indices.resize(out.offsets[rows]);
-#pragma omp parallel for schedule(dynamic, 512)
+#pragma omp parallel for schedule(dynamic, 512) if (rows > kParallelMin)
   for (index_t r = 0; r < rows; ++r) {
     std::copy_n(tmp.data() + off_a[r] + off_b[r], len[r], out.indices.data() + out.offsets[r]);
   }

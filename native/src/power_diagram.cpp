@@ -100,7 +100,7 @@ PowerDiagramResult power_diagram(const real_t* P, const real_t* W, index_t N, co
   }
   PowerDiagramResult out;
   out.orthocentres.resize(3 * static_cast<std::size_t>(T));
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (T > kParallelMin)
   for (index_t t = 0; t < T; ++t) orthocentre(P, W, tets + 4 * t, out.orthocentres.data() + 3 * t);
 
   // Faces: each interior face once (from its lower-id tet), each hull face from its only tet.
@@ -171,7 +171,7 @@ PowerDiagramResult power_diagram(const real_t* P, const real_t* W, index_t N, co
           if (j != k) put(tets[4 * t + k], tets[4 * t + j]);
   });
   std::vector<index_t> row_len(N, 0);
-#pragma omp parallel for schedule(dynamic, 256)
+#pragma omp parallel for schedule(dynamic, 256) if (N > kParallelMin)
   for (index_t i = 0; i < N; ++i) {
     auto b = raw.indices.begin() + raw.offsets[i], e = raw.indices.begin() + raw.offsets[i + 1];
     std::sort(b, e);

@@ -9,4 +9,7 @@ namespace dmesh {
 using real_t = double;      // positions, weights, orthocentres
 using index_t = std::int32_t;
 constexpr index_t kNone = -1;
+// Loops over fewer elements than this run on one thread: OpenMP start-up and barriers cost more than the
+// work, and much more on a loaded machine where idle threads spin.
+constexpr index_t kParallelMin = 20000;
 }  // namespace dmesh

@@ -1,0 +1,407 @@
+"""Reconstruction metrics: Chamfer distances, F-score, normal consistency, RE/FP and mesh statistics.
+
+Shape letters: N surface samples per mesh, V vertices, F faces, E unique edges.
+
+Frames and units. Every distance metric is computed after mapping **both** meshes by the GT's transform
+(`datasets.normalize`: GT vertex mean to the origin, GT max vertex norm 1; DESIGN.md 8.1), so distances are in
+units of the GT's radius. The NDC-compatible metrics (`cd_l2_ndc`, `f_score`, `normal_consistency`) then
+rescale so the GT's bounding-box diagonal is 1, as NDC and VoroMesh do. Tables multiply `cd_l1` and `cd_p2s`
+by 1e3 ("x1e-3").
+
+Sampling. `sample(mesh, n, seed)` draws n area-uniform surface points (trimesh). The GT is sampled with
+`seed` and the prediction with `seed + 1`, so a mesh compared with itself shows the sampling floor of the
+sample-based CD (about 5-7e-3 at 1e5 samples on the shared meshes; it shrinks as 1/sqrt(n)), while the
+point-to-surface CD of a mesh against itself is exactly 0.
+
+Definitions (P: samples of the prediction, G: samples of the GT; d(x, S): Euclidean distance from x to its
+nearest point of the sample set S; dist(x, M): exact distance from x to the triangles of mesh M):
+- `cd_l1` = mean_{g in G} d(g, P) + mean_{p in P} d(p, G)  (unsquared, summed; DMesh's convention);
+- `cd_p2s` = mean_{g in G} dist(g, pred) + mean_{p in P} dist(p, gt)  (no sampling floor; the primary figure);
+- `cd_l2_ndc` = mean d(g, P)^2 + mean d(p, G)^2 in the NDC frame (NDC's `cd2`);
+- `f_score` = 2 PR / (P + R) with precision P = fraction of p with d(p, G) < 0.003 and recall R = fraction of g
+  with d(g, P) < 0.003, in the NDC frame;
+- `normal_consistency` = (mean_g |n_g . n_NN(g)| + mean_p |n_p . n_NN(p)|) / 2 with face normals of the samples
+  (absolute value: orientation ignored).
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: F-score distance threshold in the NDC frame (bounding-box diagonal 1).
+F_SCORE_THRESHOLD = 0.003
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+def _check_mesh(mesh, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64, faces (F, 3) int64) of a trimesh-like mesh; ValueError for NaN or bad faces."""
+    if mesh is None:
+        raise ValueError(f"{what} mesh is None")
+    v = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    if not np.isfinite(v).all():
+        raise ValueError(f"{what} mesh has NaN or inf vertices")
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError(f"{what} mesh has face indices outside its {len(v)} vertices")
+    return v, f
+
+
+def _area(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(F,) float64 triangle areas."""
+    t = v[f]
+    return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+
+def sample(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n area-uniform surface samples.
+
+    Args:
+        vertices: (V, 3) float64; faces: (F, 3) int64 with positive total area.
+        n: number of samples; seed: seed of a NumPy Generator.
+
+    Returns:
+        points: (n, 3) float64. face: (n,) int64 the face each sample lies on. normals: (n, 3) float64 unit
+        face normals (zero for degenerate faces).
+    """
+    rng = np.random.default_rng(seed)
+    area = _area(vertices, faces)
+    face = rng.choice(len(faces), size=n, p=area / area.sum())
+    u, w = rng.random(n), rng.random(n)
+    flip = u + w > 1                      # fold the unit square onto the triangle
+    u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
+    t = vertices[faces[face]]
+    pts = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0])
+    nrm = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    return pts, face, nrm
+
+
+def gt_transform(gt) -> tuple[np.ndarray, float]:
+    """(center (3,) float64, scale) of the GT frame: x -> (x - center) * scale gives vertex mean 0, max norm 1.
+
+    Uses `datasets.normalize` when importable (the same definition, kept in one place), else computes it.
+    """
+    v, _ = _check_mesh(gt, "GT")
+    if len(v) == 0:
+        raise ValueError("GT mesh has no vertices")
+    try:
+        from datasets.normalize import normalize
+    except ImportError:
+        c = v.mean(0)
+        r = float(np.linalg.norm(v - c, axis=1).max())
+        if r == 0:
+            raise ValueError("GT mesh vertices all coincide") from None
+        return c, 1.0 / r
+    _, t = normalize(gt, radius=1.0)
+    return np.asarray(t.center, dtype=np.float64), float(t.scale)
+
+
+def _prepare(pred, gt):
+    """Both meshes as (vertices, faces) in the GT frame, and whether the prediction has any area."""
+    gv, gf = _check_mesh(gt, "GT")
+    pv, pf = _check_mesh(pred, "predicted")
+    if len(gf) == 0 or _area(gv, gf).sum() <= 0:
+        raise ValueError("GT mesh has no faces with positive area")
+    c, s = gt_transform(gt)
+    gv, pv = (gv - c) * s, (pv - c) * s
+    empty = len(pf) == 0 or not _area(pv, pf).sum() > 0
+    return (pv, pf), (gv, gf), empty
+
+
+# ----------------------------------------------------------------------------------------- distances
+
+def chamfer_l1_samples(pred, gt, n: int = 100_000, seed: int = 0) -> float:
+    """Sample-based Chamfer L1: mean d(g, P) + mean d(p, G) with n area-uniform samples each way.
+
+    Args:
+        pred, gt: trimesh.Trimesh (vertices (V, 3), faces (F, 3)); both mapped into the GT frame first.
+        n: samples per mesh; seed: GT samples use `seed`, prediction samples `seed + 1`.
+
+    Returns:
+        float, in GT-radius units (unsquared distances, summed over both directions); inf for an empty
+        prediction. Has a sampling floor > 0 even for identical meshes (see module docstring).
+    """
+    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    if empty:
+        return math.inf
+    from scipy.spatial import cKDTree
+
+    G, _, _ = sample(gv, gf, n, seed)
+    P, _, _ = sample(pv, pf, n, seed + 1)
+    d_gp, _ = cKDTree(P).query(G, workers=-1)
+    d_pg, _ = cKDTree(G).query(P, workers=-1)
+    return float(d_gp.mean() + d_pg.mean())
+
+
+def chamfer_l1_p2s(pred, gt, n: int = 100_000, seed: int = 0, backend: str = "auto") -> float:
+    """Point-to-surface Chamfer L1: mean dist(g, pred) + mean dist(p, gt), exact distances to the triangles.
+
+    Args:
+        pred, gt: trimesh.Trimesh; both mapped into the GT frame first.
+        n: samples per mesh; seed: as in `chamfer_l1_samples` (the same sample sets).
+        backend: closest-point backend (`eval.closest_point.make_index`): "auto" (open3d if importable),
+            "open3d" (Embree, float32: exact up to ~1e-7) or "numpy" (exact float64, ~10x slower).
+
+    Returns:
+        float in GT-radius units; 0 for identical meshes (no sampling floor; ~1e-8 with open3d's float32);
+        inf for an empty prediction.
+    """
+    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    if empty:
+        return math.inf
+    from eval.closest_point import make_index
+
+    G, _, _ = sample(gv, gf, n, seed)
+    P, _, _ = sample(pv, pf, n, seed + 1)
+    d_g, _, _ = make_index(pv, pf, backend).query(G)
+    d_p, _, _ = make_index(gv, gf, backend).query(P)
+    return float(d_g.mean() + d_p.mean())
+
+
+def _ndc_scale(gv: np.ndarray) -> float:
+    """Factor from the GT frame to the NDC frame (GT bounding-box diagonal 1); gv: (V, 3) GT-frame vertices."""
+    return 1.0 / float(np.linalg.norm(gv.max(0) - gv.min(0)))
+
+
+def _sample_metrics(pv, pf, gv, gf, n, seed, threshold):
+    """All sample-based figures from one pair of sample sets (see `compute_metrics` for the keys)."""
+    from scipy.spatial import cKDTree
+
+    G, _, nG = sample(gv, gf, n, seed)
+    P, _, nP = sample(pv, pf, n, seed + 1)
+    d_gp, i_gp = cKDTree(P).query(G, workers=-1)
+    d_pg, i_pg = cKDTree(G).query(P, workers=-1)
+    k = _ndc_scale(gv)
+    precision = float((d_pg * k < threshold).mean())
+    recall = float((d_gp * k < threshold).mean())
+    out = {
+        "cd_l1": float(d_gp.mean() + d_pg.mean()),
+        "cd_l1_gt_to_pred": float(d_gp.mean()),
+        "cd_l1_pred_to_gt": float(d_pg.mean()),
+        "cd_l2_ndc": float(((d_gp * k) ** 2).mean() + ((d_pg * k) ** 2).mean()),
+        "precision": precision,
+        "recall": recall,
+        "f_score": 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall),
+        "normal_consistency": 0.5 * float(np.abs(np.einsum("nc,nc->n", nG, nP[i_gp])).mean()
+                                          + np.abs(np.einsum("nc,nc->n", nP, nG[i_pg])).mean()),
+    }
+    return out, G, P
+
+
+def cd_l2_ndc(pred, gt, n: int = 100_000, seed: int = 0) -> float:
+    """NDC's `cd2`: mean d(g, P)^2 + mean d(p, G)^2 in the NDC frame (GT bbox diagonal 1); inf if pred is empty.
+
+    Args: as `chamfer_l1_samples` (same samples). Returns: float, squared NDC units.
+    """
+    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    return math.inf if empty else _sample_metrics(pv, pf, gv, gf, n, seed, F_SCORE_THRESHOLD)[0]["cd_l2_ndc"]
+
+
+def f_score(pred, gt, threshold: float = F_SCORE_THRESHOLD, n: int = 100_000, seed: int = 0) -> float:
+    """F-score at `threshold` (NDC frame, unsquared sample NN distances); in [0, 1], 0 if pred is empty.
+
+    Args: pred, gt: trimesh.Trimesh; threshold: distance in NDC units (bbox diagonal 1); n, seed: as above.
+    """
+    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    return 0.0 if empty else _sample_metrics(pv, pf, gv, gf, n, seed, threshold)[0]["f_score"]
+
+
+def normal_consistency(pred, gt, n: int = 100_000, seed: int = 0) -> float:
+    """Mean |n . n_NN| of sample face normals, both ways, averaged; in [0, 1], NaN if pred is empty."""
+    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    return math.nan if empty else _sample_metrics(pv, pf, gv, gf, n, seed, F_SCORE_THRESHOLD)[0][
+        "normal_consistency"]
+
+
+# ----------------------------------------------------------------------------------------------- RE/FP
+
+def _unique_rows(faces: np.ndarray) -> np.ndarray:
+    f = np.sort(np.asarray(faces, dtype=np.int64).reshape(-1, 3), axis=1)
+    return np.unique(f, axis=0)
+
+
+def _row_keys(rows: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(rows).view(np.dtype((np.void, 24))).ravel()
+
+
+def re_fp(pred_faces: np.ndarray, gt_faces: np.ndarray, n_gt_vertices: int | None = None) -> dict:
+    """Face recovery (RE) and false-positive ratio (FP) of DMesh's mesh-to-DMesh experiment.
+
+    Both face lists index one shared vertex array whose first `n_gt_vertices` entries are the GT vertices
+    (the prediction may add more vertices after them). Faces are compared as sorted, unique index triples, so
+    winding and duplicates (back-to-back pairs) do not matter.
+
+    Args:
+        pred_faces: (F, 3) int predicted faces. gt_faces: (F', 3) int GT faces, F' >= 1.
+        n_gt_vertices: number of GT vertices; None: max index in gt_faces + 1.
+
+    Returns:
+        {"re": recovered / gt_faces, "fp": false / on_gt (0.0 when on_gt is 0), "gt_faces": unique GT
+        triples, "on_gt": unique predicted triples whose three vertices are all GT vertices, "recovered":
+        those that are GT triples, "false": those that are not}.
+    """
+    gt = _unique_rows(gt_faces)
+    if len(gt) == 0:
+        raise ValueError("re_fp: gt_faces is empty")
+    if gt.min() < 0:
+        raise ValueError("re_fp: negative face index")
+    nv = int(gt.max()) + 1 if n_gt_vertices is None else int(n_gt_vertices)
+    if gt.max() >= nv:
+        raise ValueError(f"re_fp: gt_faces index vertex {int(gt.max())} >= n_gt_vertices {nv}")
+    pred = _unique_rows(pred_faces)
+    if len(pred) and pred.min() < 0:
+        raise ValueError("re_fp: negative face index")
+    on_gt = pred[(pred < nv).all(axis=1)]
+    hit = np.isin(_row_keys(on_gt), _row_keys(gt))
+    recovered = int(hit.sum())
+    false = int(len(on_gt) - recovered)
+    return {"re": recovered / len(gt), "fp": false / len(on_gt) if len(on_gt) else 0.0, "gt_faces": int(len(gt)),
+            "on_gt": int(len(on_gt)), "recovered": recovered, "false": false}
+
+
+# ------------------------------------------------------------------------------------------ mesh stats
+
+def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique undirected edges (E, 2) int64 and how many faces use each (E,) int64."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(e, axis=0, return_counts=True)
+
+
+def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> int:
+    """Number of faces that intersect another face not sharing a vertex with it (pymeshlab); -1 without it."""
+    if len(faces) == 0:
+        return 0
+    try:
+        import pymeshlab
+    except ImportError:
+        log.warning("pymeshlab is not installed (project extra [harness]); self-intersections not counted")
+        return -1
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(vertices, np.float64),
+                               face_matrix=np.asarray(faces, np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    return int(ms.current_mesh().selected_face_number())
+
+
+def mesh_stats(mesh, self_intersections: bool = True) -> dict:
+    """Counts and triangle-quality figures of a mesh (frame-independent).
+
+    Args:
+        mesh: trimesh.Trimesh with vertices (V, 3), faces (F, 3); may be empty.
+        self_intersections: count self-intersecting faces (pymeshlab; the slowest figure).
+
+    Returns:
+        {"vertices": V, "faces": F, "edges": E unique undirected edges, "boundary_edges": edges used by one face,
+        "non_manifold_edges": edges used by more than two faces, "components": connected components of the
+        faces (faces joined through shared vertices), "watertight": every edge is used by exactly two faces
+        and F > 0, "self_intersecting_faces": count (-1 if not computed), "degenerate_faces": zero-area faces,
+        "aspect_ratio_mean", "aspect_ratio_max": circumradius / (2 inradius) (1 for equilateral, inf for
+        degenerate; the mean is over non-degenerate faces), "angles_below_10_pct": % of triangle corner
+        angles under 10 degrees (corners of zero-length edges excluded)}. Empty meshes give 0 counts and NaN
+        figures.
+    """
+    v = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    out = {"vertices": int(len(v)), "faces": int(len(f)), "edges": 0, "boundary_edges": 0,
+           "non_manifold_edges": 0, "components": 0, "watertight": False, "self_intersecting_faces": 0,
+           "degenerate_faces": 0, "aspect_ratio_mean": math.nan, "aspect_ratio_max": math.nan,
+           "angles_below_10_pct": math.nan}
+    if len(f) == 0:
+        return out
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges, counts = _edge_counts(f)
+    out["edges"] = int(len(edges))
+    out["boundary_edges"] = int((counts == 1).sum())
+    out["non_manifold_edges"] = int((counts > 2).sum())
+    out["watertight"] = bool((counts == 2).all())
+    used = np.unique(f)
+    remap = np.full(len(v), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    g = remap[edges]
+    adj = coo_matrix((np.ones(len(g)), (g[:, 0], g[:, 1])), shape=(len(used), len(used)))
+    out["components"] = int(connected_components(adj, directed=False)[0])
+    if self_intersections:
+        out["self_intersecting_faces"] = self_intersecting_faces(v, f)
+    else:
+        out["self_intersecting_faces"] = -1
+    t = v[f]
+    la = np.linalg.norm(t[:, 1] - t[:, 2], axis=1)   # opposite corner 0
+    lb = np.linalg.norm(t[:, 2] - t[:, 0], axis=1)
+    lc = np.linalg.norm(t[:, 0] - t[:, 1], axis=1)
+    area = _area(v, f)
+    scale = np.maximum(np.maximum(la, lb), lc)
+    degenerate = area <= 1e-12 * np.maximum(scale * scale, 1e-300)
+    out["degenerate_faces"] = int(degenerate.sum())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        aspect = la * lb * lc * (la + lb + lc) / (16.0 * area * area)
+    aspect = np.where(degenerate, np.inf, aspect)
+    finite = aspect[~degenerate]
+    out["aspect_ratio_mean"] = float(finite.mean()) if len(finite) else math.inf
+    out["aspect_ratio_max"] = float(aspect.max())
+    angles = []
+    for (o1, o2), opp in (((lb, lc), la), ((lc, la), lb), ((la, lb), lc)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cos = (o1 * o1 + o2 * o2 - opp * opp) / (2 * o1 * o2)
+        angles.append(np.degrees(np.arccos(np.clip(cos[(o1 > 0) & (o2 > 0)], -1.0, 1.0))))
+    a = np.concatenate(angles)
+    out["angles_below_10_pct"] = float(100.0 * (a < 10.0).mean()) if len(a) else math.nan
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ all
+
+def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersections: bool = True,
+                    re_fp_vertices: int | None = None, p2s_backend: str = "auto") -> dict:
+    """Every metric of a prediction against its GT, as one flat dict (both meshes in the GT frame).
+
+    Args:
+        pred: trimesh.Trimesh prediction (may be empty: flagged, not an error). gt: trimesh.Trimesh with
+            positive area. Both must have finite vertices (ValueError otherwise).
+        n: area-uniform samples per mesh (GT with `seed`, prediction with `seed + 1`).
+        self_intersections: count self-intersecting faces of the prediction (pymeshlab).
+        re_fp_vertices: when the prediction's first K vertices are the GT's vertices in order (mesh to
+            DMesh), K; adds the `re_fp` keys ("re", "fp", ...). None: no RE/FP.
+        p2s_backend: closest-point backend for `cd_p2s` (see `chamfer_l1_p2s`).
+
+    Returns:
+        {"empty": no prediction face has area (then distances are inf, f_score/precision/recall 0 and
+        normal_consistency NaN), "n_samples", "seed",
+        "cd_l1", "cd_l1_gt_to_pred", "cd_l1_pred_to_gt": sample Chamfer L1 and its two halves (GT-radius units),
+        "cd_p2s", "cd_p2s_gt_to_pred", "cd_p2s_pred_to_gt": point-to-surface Chamfer L1 and halves (GT-radius
+        units), "cd_l2_ndc" (squared NDC units), "f_score", "precision", "recall" (at 0.003 NDC),
+        "normal_consistency", then the `mesh_stats` keys of the prediction (vertices, faces, edges,
+        boundary_edges, non_manifold_edges, components, watertight, self_intersecting_faces,
+        degenerate_faces, aspect_ratio_mean, aspect_ratio_max, angles_below_10_pct)}.
+    """
+    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    out: dict = {"empty": bool(empty), "n_samples": int(n), "seed": int(seed)}
+    if empty:
+        log.warning("empty prediction: distances reported as inf")
+        out.update({"cd_l1": math.inf, "cd_l1_gt_to_pred": math.inf, "cd_l1_pred_to_gt": math.inf,
+                    "cd_p2s": math.inf, "cd_p2s_gt_to_pred": math.inf, "cd_p2s_pred_to_gt": math.inf,
+                    "cd_l2_ndc": math.inf, "f_score": 0.0, "precision": 0.0, "recall": 0.0,
+                    "normal_consistency": math.nan})
+    else:
+        from eval.closest_point import make_index
+
+        figures, G, P = _sample_metrics(pv, pf, gv, gf, n, seed, F_SCORE_THRESHOLD)
+        d_g, _, _ = make_index(pv, pf, p2s_backend).query(G)
+        d_p, _, _ = make_index(gv, gf, p2s_backend).query(P)
+        out.update({"cd_l1": figures.pop("cd_l1"), "cd_l1_gt_to_pred": figures.pop("cd_l1_gt_to_pred"),
+                    "cd_l1_pred_to_gt": figures.pop("cd_l1_pred_to_gt"),
+                    "cd_p2s": float(d_g.mean() + d_p.mean()), "cd_p2s_gt_to_pred": float(d_g.mean()),
+                    "cd_p2s_pred_to_gt": float(d_p.mean())})
+        out.update(figures)
+    import trimesh
+
+    out.update(mesh_stats(trimesh.Trimesh(pv, pf, process=False), self_intersections=self_intersections))
+    if re_fp_vertices is not None:
+        out.update(re_fp(pf, gf, n_gt_vertices=int(re_fp_vertices)))
+    return out

@@ -1,0 +1,688 @@
+// Soft tile rasteriser: see soft_render.h for the model. All geometry is evaluated in double precision.
+#include "soft_render.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <utility>
+#include <stdexcept>
+#include <string>
+
+namespace dmesh {
+namespace render_detail {
+
+View make_view(const RenderCamera& cam, const char* fn) {
+  const std::string f(fn);
+  if (cam.height < 1 || cam.width < 1 || cam.height > 16384 || cam.width > 16384) {
+    throw std::invalid_argument(f + ": image size must be in [1, 16384], got " + std::to_string(cam.height) +
+                                " x " + std::to_string(cam.width));
+  }
+  if (!(cam.fov_y > 0.0 && cam.fov_y < M_PI)) {
+    throw std::invalid_argument(f + ": fov_y must be in (0, pi) radians, got " + std::to_string(cam.fov_y));
+  }
+  if (!(cam.near > 0.0) || !std::isfinite(cam.near)) {
+    throw std::invalid_argument(f + ": near must be positive, got " + std::to_string(cam.near));
+  }
+  for (int k = 0; k < 12; ++k) {
+    if (!std::isfinite(cam.world_to_camera[k])) {
+      throw std::invalid_argument(f + ": world_to_camera must be finite");
+    }
+  }
+  View v;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) v.R[3 * r + c] = cam.world_to_camera[4 * r + c];
+    v.t[r] = cam.world_to_camera[4 * r + 3];
+  }
+  v.H = cam.height;
+  v.W = cam.width;
+  v.f = 0.5 * double(cam.height) / std::tan(0.5 * cam.fov_y);
+  v.cx = 0.5 * double(cam.width);
+  v.cy = 0.5 * double(cam.height);
+  v.near = cam.near;
+  return v;
+}
+
+int thread_count(int requested) {
+  if (requested > 0) return std::min(requested, 256);
+  const unsigned hc = std::thread::hardware_concurrency();
+  return hc == 0 ? 1 : int(std::min(hc, 256u));
+}
+
+}  // namespace render_detail
+
+namespace {
+using namespace render_detail;
+
+constexpr int kTile = 16;
+
+inline void cross3(const double a[3], const double b[3], double out[3]) {
+  out[0] = a[1] * b[2] - a[2] * b[1];
+  out[1] = a[2] * b[0] - a[0] * b[2];
+  out[2] = a[0] * b[1] - a[1] * b[0];
+}
+inline double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+// Everything about one drawn face that the per-pixel loops need.
+struct alignas(64) Face {
+  // hot: read by every coverage test
+  double ea[3], eb[3], ec[3];  // normalised edge lines: sd_e = ea u + eb v + ec, >= 0 on the inner side
+  double area2;     // signed doubled screen area
+  // warm: read for covered pixels
+  double q[3][2];   // screen corners (u, v)
+  double n[3];      // unnormalised normal (P1 - P0) x (P2 - P0)
+  double nlen;      // |n|
+  double num;       // n . P0 = det(P0, P1, P2)
+  double zmin, zmax;
+  double opacity;
+  index_t id;       // input face index
+  int imin, imax;   // corners with the smallest / largest depth
+  index_t x0, x1, y0, y1;  // pixel bounding box (inclusive), band included
+  // cold: backward only
+  double P[3][3];   // camera-space corners
+};
+
+struct BinEntry {  // what a tile keeps per listed face (16 bytes)
+  std::int16_t x0, x1, y0, y1;
+  float zmin;       // rounded down: a lower bound of the face's zmin
+  index_t slot;     // index into Prepared::faces
+};
+
+struct RowEntry {  // a tile's faces whose box spans one pixel row
+  std::int16_t x0, x1;
+  float zmin;
+  index_t slot;
+};
+
+// Fills Face from the corners; returns false when the face is culled.
+bool setup_face(const View& view, const float* verts, const index_t* tri, double opacity, double w, Face& fc) {
+  fc.id = kNone;
+  for (int i = 0; i < 3; ++i) {
+    const float* x = verts + 3 * std::int64_t(tri[i]);
+    if (!std::isfinite(x[0]) || !std::isfinite(x[1]) || !std::isfinite(x[2])) return false;
+    view.to_camera(x, fc.P[i]);
+    const double depth = -fc.P[i][2];
+    if (!(depth >= view.near)) return false;
+    fc.q[i][0] = view.cx + view.f * fc.P[i][0] / depth;
+    fc.q[i][1] = view.cy - view.f * fc.P[i][1] / depth;
+  }
+  double e1[3], e2[3];
+  for (int k = 0; k < 3; ++k) {
+    e1[k] = fc.P[1][k] - fc.P[0][k];
+    e2[k] = fc.P[2][k] - fc.P[0][k];
+  }
+  cross3(e1, e2, fc.n);
+  fc.nlen = std::sqrt(dot3(fc.n, fc.n));
+  // A (numerically) zero-area face has no normal: diffuse 0 and depth zmax (its normal would be noise).
+  if (fc.nlen <= 1e-12 * std::sqrt(dot3(e1, e1) * dot3(e2, e2))) {
+    fc.n[0] = fc.n[1] = fc.n[2] = 0.0;
+    fc.nlen = 0.0;
+  }
+  fc.num = dot3(fc.n, fc.P[0]);
+  fc.imin = fc.imax = 0;
+  for (int i = 1; i < 3; ++i) {
+    if (-fc.P[i][2] < -fc.P[fc.imin][2]) fc.imin = i;
+    if (-fc.P[i][2] > -fc.P[fc.imax][2]) fc.imax = i;
+  }
+  fc.zmin = -fc.P[fc.imin][2];
+  fc.zmax = -fc.P[fc.imax][2];
+  fc.area2 = (fc.q[1][0] - fc.q[0][0]) * (fc.q[2][1] - fc.q[0][1]) -
+             (fc.q[2][0] - fc.q[0][0]) * (fc.q[1][1] - fc.q[0][1]);
+  const double sgn = fc.area2 >= 0 ? 1.0 : -1.0;
+  for (int e = 0; e < 3; ++e) {
+    const double* a = fc.q[e];
+    const double* b = fc.q[(e + 1) % 3];
+    const double dx = b[0] - a[0], dy = b[1] - a[1];
+    const double len = std::sqrt(dx * dx + dy * dy);
+    if (len > 0) {  // cross((b - a), (p - a)) / len, oriented to be >= 0 inside
+      fc.ea[e] = -sgn * dy / len;
+      fc.eb[e] = sgn * dx / len;
+      fc.ec[e] = sgn * (dy * a[0] - dx * a[1]) / len;
+    } else {
+      fc.ea[e] = fc.eb[e] = 0.0;
+      fc.ec[e] = std::numeric_limits<double>::infinity();
+    }
+  }
+  fc.opacity = opacity;
+  double umin = fc.q[0][0], umax = umin, vmin = fc.q[0][1], vmax = vmin;
+  for (int i = 1; i < 3; ++i) {
+    umin = std::min(umin, fc.q[i][0]);
+    umax = std::max(umax, fc.q[i][0]);
+    vmin = std::min(vmin, fc.q[i][1]);
+    vmax = std::max(vmax, fc.q[i][1]);
+  }
+  // pixel j is hit when its centre j + 0.5 lies in [umin - w, umax + w]
+  const double lo_u = std::ceil(umin - w - 0.5), hi_u = std::floor(umax + w - 0.5);
+  const double lo_v = std::ceil(vmin - w - 0.5), hi_v = std::floor(vmax + w - 0.5);
+  if (hi_u < 0 || hi_v < 0 || lo_u > view.W - 1 || lo_v > view.H - 1 || lo_u > hi_u || lo_v > hi_v) return false;
+  fc.x0 = index_t(std::max(lo_u, 0.0));
+  fc.x1 = index_t(std::min(hi_u, double(view.W - 1)));
+  fc.y0 = index_t(std::max(lo_v, 0.0));
+  fc.y1 = index_t(std::min(hi_v, double(view.H - 1)));
+  return true;
+}
+
+inline double smoothstep(double s) { return s * s * (3.0 - 2.0 * s); }
+
+// Coverage of the pixel centre (u, v); when grad is given, also d cov / d q (3 x 2).
+inline double coverage(const Face& fc, double u, double v, double w, double* grad) {
+  double sd[3];
+  bool inside = fc.area2 != 0.0;
+  for (int e = 0; e < 3; ++e) {
+    sd[e] = fc.ea[e] * u + fc.eb[e] * v + fc.ec[e];
+    if (sd[e] <= -w) return 0.0;
+    inside = inside && sd[e] >= 0.0;
+  }
+  if (inside) {
+    if (grad) std::fill(grad, grad + 6, 0.0);
+    return 1.0;
+  }
+  // distance to the triangle = the smallest distance to its three edge segments
+  double best = std::numeric_limits<double>::infinity(), bt = 0.0, bx = 0.0, by = 0.0;
+  int be = 0;
+  for (int e = 0; e < 3; ++e) {
+    const double* a = fc.q[e];
+    const double* b = fc.q[(e + 1) % 3];
+    const double dx = b[0] - a[0], dy = b[1] - a[1];
+    const double l2 = dx * dx + dy * dy;
+    double t = l2 > 0 ? ((u - a[0]) * dx + (v - a[1]) * dy) / l2 : 0.0;
+    t = std::min(1.0, std::max(0.0, t));
+    const double rx = u - (a[0] + t * dx), ry = v - (a[1] + t * dy);
+    const double d2 = rx * rx + ry * ry;
+    if (d2 < best) {
+      best = d2;
+      bt = t;
+      bx = rx;
+      by = ry;
+      be = e;
+    }
+  }
+  const double dist = std::sqrt(best);
+  if (dist >= w) return 0.0;
+  const double s = 1.0 - dist / w;
+  if (grad) {
+    std::fill(grad, grad + 6, 0.0);
+    if (dist > 0) {
+      // d cov / d dist = -S'(s) / w; d dist / d a = -(1 - t) r / dist, d dist / d b = -t r / dist
+      const double g = -6.0 * s * (1.0 - s) / w / dist;
+      const int ia = be, ib = (be + 1) % 3;
+      grad[2 * ia] += -g * (1.0 - bt) * bx;
+      grad[2 * ia + 1] += -g * (1.0 - bt) * by;
+      grad[2 * ib] += -g * bt * bx;
+      grad[2 * ib + 1] += -g * bt * by;
+    }
+  }
+  return smoothstep(s);
+}
+
+// Ray-plane depth clamped into [zmin, zmax]; `which` = -1 when unclamped, else the clamping corner.
+inline double frag_depth(const Face& fc, const double d[3], double* den_out, int* which) {
+  const double den = dot3(fc.n, d);
+  double z = den != 0.0 ? fc.num / den : std::numeric_limits<double>::quiet_NaN();
+  *den_out = den;
+  if (!std::isfinite(z)) {
+    *which = fc.imax;
+    return fc.zmax;
+  }
+  if (z < fc.zmin) {
+    *which = fc.imin;
+    return fc.zmin;
+  }
+  if (z > fc.zmax) {
+    *which = fc.imax;
+    return fc.zmax;
+  }
+  *which = -1;
+  return z;
+}
+
+inline double frag_diffuse(const Face& fc, const double d[3]) {
+  if (fc.nlen == 0.0) return 0.0;
+  return std::fabs(dot3(fc.n, d)) / (fc.nlen * std::sqrt(dot3(d, d)));
+}
+
+struct Frag {
+  double key;  // sort depth: z inside the triangle, the face's zmax in the soft band
+  double z;
+  index_t face;
+  double a, c;
+};
+
+struct Prepared {
+  std::unique_ptr<Face[]> faces;    // candidate faces sorted by (zmin, id): index = slot
+  std::vector<std::int64_t> tile_start;  // (tiles + 1,)
+  std::unique_ptr<BinEntry[]> bins;  // per tile, in slot order (so sorted by zmin)
+  std::int64_t num_drawn = 0, num_bins = 0;
+  index_t tiles_x = 0, tiles_y = 0;
+};
+
+void validate(const index_t* faces, index_t F, index_t N, const float* opacity, const SoftRenderSettings& s,
+              const char* fn) {
+  const std::string f(fn);
+  if (!(s.edge_width > 0.0) || !std::isfinite(s.edge_width)) {
+    throw std::invalid_argument(f + ": edge_width must be positive, got " + std::to_string(s.edge_width));
+  }
+  if (!(s.t_min > 0.0 && s.t_min < 1.0)) {
+    throw std::invalid_argument(f + ": t_min must be in (0, 1), got " + std::to_string(s.t_min));
+  }
+  if (!(s.min_opacity >= 0.0 && s.min_opacity < 1.0)) {
+    throw std::invalid_argument(f + ": min_opacity must be in [0, 1), got " + std::to_string(s.min_opacity));
+  }
+  for (std::int64_t k = 0; k < 3 * std::int64_t(F); ++k) {
+    if (faces[k] < 0 || faces[k] >= N) {
+      throw std::invalid_argument(f + ": faces holds " + std::to_string(faces[k]) + ", outside [0, " +
+                                  std::to_string(N) + ")");
+    }
+  }
+  for (index_t k = 0; k < F; ++k) {
+    if (!(opacity[k] >= 0.0f && opacity[k] <= 1.0f)) {
+      throw std::invalid_argument(f + ": opacity[" + std::to_string(k) + "] = " + std::to_string(opacity[k]) +
+                                  " is outside [0, 1]");
+    }
+  }
+}
+
+Prepared prepare(const View& view, const float* verts, const index_t* faces, index_t F, const float* opacity,
+                 const SoftRenderSettings& s, int threads) {
+  Prepared p;
+  // 1. depth range of every candidate face (cheap), 2. order by (zmin, id), 3. full setup in that order,
+  // straight into the slot array (so a tile's faces lie in memory in the order its pixels read them).
+  std::vector<std::pair<double, index_t>> order(static_cast<size_t>(F));
+  const std::int64_t chunk = 8192;
+  parallel_for((std::int64_t(F) + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
+    const std::int64_t end = std::min<std::int64_t>(F, (c + 1) * chunk);
+    for (std::int64_t k = c * chunk; k < end; ++k) {
+      double zmin = std::numeric_limits<double>::infinity();
+      bool ok = double(opacity[k]) > s.min_opacity;
+      for (int i = 0; i < 3 && ok; ++i) {
+        const float* x = verts + 3 * std::int64_t(faces[3 * k + i]);
+        double pc[3];
+        view.to_camera(x, pc);
+        ok = std::isfinite(pc[0]) && std::isfinite(pc[1]) && -pc[2] >= view.near;
+        zmin = std::min(zmin, -pc[2]);
+      }
+      order[k] = {ok ? zmin : std::numeric_limits<double>::infinity(), ok ? index_t(k) : kNone};
+    }
+  });
+  order.erase(std::remove_if(order.begin(), order.end(), [](const std::pair<double, index_t>& a) { return a.second == kNone; }),
+              order.end());
+  if (threads > 1 && order.size() > 65536) {  // two halves in parallel, then merge
+    const auto mid = order.begin() + order.size() / 2;
+    parallel_for(2, 2, [&](std::int64_t h, int) { std::sort(h ? mid : order.begin(), h ? order.end() : mid); });
+    std::inplace_merge(order.begin(), mid, order.end());
+  } else {
+    std::sort(order.begin(), order.end());
+  }
+  const std::int64_t D = std::int64_t(order.size());
+  p.faces.reset(new Face[size_t(std::max<std::int64_t>(D, 1))]);  // not zero-filled
+  std::vector<std::uint8_t> ok(static_cast<size_t>(std::max<std::int64_t>(D, 1)), 0);
+  // set up in input order (vertex reads follow the input, which is usually coherent), writing each face
+  // to its slot
+  std::vector<index_t> slot_of(static_cast<size_t>(F), kNone);
+  for (std::int64_t k = 0; k < D; ++k) slot_of[order[k].second] = index_t(k);
+  parallel_for((std::int64_t(F) + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
+    const std::int64_t end = std::min<std::int64_t>(F, (c + 1) * chunk);
+    for (std::int64_t f = c * chunk; f < end; ++f) {
+      const index_t k = slot_of[f];
+      if (k == kNone) continue;
+      ok[k] = setup_face(view, verts, faces + 3 * f, double(opacity[f]), s.edge_width, p.faces[k]);
+      p.faces[k].id = index_t(f);
+    }
+  });
+
+  p.tiles_x = (view.W + kTile - 1) / kTile;
+  p.tiles_y = (view.H + kTile - 1) / kTile;
+  const std::int64_t tiles = std::int64_t(p.tiles_x) * p.tiles_y;
+  std::vector<std::int64_t> count(static_cast<size_t>(tiles) + 1, 0);
+  for (std::int64_t k = 0; k < D; ++k) {
+    if (!ok[k]) continue;
+    ++p.num_drawn;
+    const Face& fc = p.faces[k];
+    for (index_t ty = fc.y0 / kTile; ty <= fc.y1 / kTile; ++ty)
+      for (index_t tx = fc.x0 / kTile; tx <= fc.x1 / kTile; ++tx) ++count[std::int64_t(ty) * p.tiles_x + tx];
+  }
+  p.tile_start.assign(size_t(tiles) + 1, 0);
+  for (std::int64_t t = 0; t < tiles; ++t) p.tile_start[t + 1] = p.tile_start[t] + count[t];
+  p.bins.reset(new BinEntry[size_t(std::max<std::int64_t>(p.tile_start[tiles], 1))]);
+  p.num_bins = p.tile_start[tiles];
+  std::vector<std::int64_t> fill(p.tile_start.begin(), p.tile_start.end() - 1);
+  for (std::int64_t slot = 0; slot < D; ++slot) {
+    if (!ok[slot]) continue;
+    const Face& fc = p.faces[slot];
+    float zlo = float(fc.zmin);
+    if (double(zlo) > fc.zmin) zlo = std::nextafter(zlo, -std::numeric_limits<float>::infinity());
+    const BinEntry b{std::int16_t(fc.x0), std::int16_t(fc.x1), std::int16_t(fc.y0), std::int16_t(fc.y1), zlo,
+                     index_t(slot)};
+    for (index_t ty = fc.y0 / kTile; ty <= fc.y1 / kTile; ++ty)
+      for (index_t tx = fc.x0 / kTile; tx <= fc.x1 / kTile; ++tx) p.bins[fill[std::int64_t(ty) * p.tiles_x + tx]++] = b;
+  }
+  return p;
+}
+
+// Heap order: a sorted vector with the nearest fragment at the back.
+inline bool farther(const Frag& a, const Frag& b) { return a.key > b.key || (a.key == b.key && a.face > b.face); }
+
+}  // namespace
+
+SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_t* faces, index_t F,
+                                     const float* opacity, const RenderCamera& cam,
+                                     const SoftRenderSettings& s) {
+  const char* fn = "soft_render_forward";
+  const View view = make_view(cam, fn);
+  validate(faces, F, N, opacity, s, fn);
+  const int threads = thread_count(s.num_threads);
+  Prepared p = prepare(view, verts, faces, F, opacity, s, threads);
+
+  const index_t H = view.H, W = view.W;
+  SoftRenderResult r;
+  r.diffuse.assign(size_t(H) * W, 0.0f);
+  r.depth.assign(size_t(H) * W, 0.0f);
+  r.alpha.assign(size_t(H) * W, 0.0f);
+  r.pix_range.assign(size_t(H) * W * 2, 0);
+  r.num_drawn = p.num_drawn;
+  r.num_bins = p.num_bins;
+  const std::int64_t tiles = std::int64_t(p.tiles_x) * p.tiles_y;
+  std::vector<std::vector<index_t>> tile_frags(static_cast<size_t>(tiles));
+  std::atomic<std::int64_t> n_scanned{0}, n_tested{0};
+  const double w = s.edge_width, t_min = s.t_min;
+
+  parallel_for(tiles, threads, [&](std::int64_t t, int) {
+    const index_t tx = index_t(t % p.tiles_x), ty = index_t(t / p.tiles_x);
+    const BinEntry* list = p.bins.get() + p.tile_start[t];
+    const std::int64_t len = p.tile_start[t + 1] - p.tile_start[t];
+    std::vector<index_t>& out = tile_frags[size_t(t)];
+    if (len == 0) return;
+    std::vector<Frag> heap;
+    heap.reserve(64);
+    // bucket the tile's list by pixel row (each row keeps the slot order)
+    const index_t i0 = ty * kTile, i1 = std::min<index_t>(H, (ty + 1) * kTile);
+    std::int64_t row_start[kTile + 1] = {0};
+    for (std::int64_t k = 0; k < len; ++k) {
+      const index_t a = std::max<index_t>(list[k].y0, i0), b = std::min<index_t>(list[k].y1, i1 - 1);
+      for (index_t i = a; i <= b; ++i) ++row_start[i - i0 + 1];
+    }
+    for (int r = 0; r < kTile; ++r) row_start[r + 1] += row_start[r];
+    std::vector<RowEntry> rows(static_cast<size_t>(row_start[kTile]));
+    std::int64_t row_fill[kTile];
+    std::copy(row_start, row_start + kTile, row_fill);
+    for (std::int64_t k = 0; k < len; ++k) {
+      const BinEntry& e = list[k];
+      const index_t a = std::max<index_t>(e.y0, i0), b = std::min<index_t>(e.y1, i1 - 1);
+      for (index_t i = a; i <= b; ++i) rows[size_t(row_fill[i - i0]++)] = RowEntry{e.x0, e.x1, e.zmin, e.slot};
+    }
+    std::int64_t scanned = 0, tested = 0;
+    for (index_t i = i0; i < i1; ++i) {
+      const RowEntry* row = rows.data() + row_start[i - i0];
+      const std::int64_t rlen = row_start[i - i0 + 1] - row_start[i - i0];
+      for (index_t j = tx * kTile; j < std::min<index_t>(W, (tx + 1) * kTile); ++j) {
+        const double u = j + 0.5, v = i + 0.5;
+        double d[3];
+        view.ray(u, v, d);
+        double T = 1.0, C = 0.0, Z = 0.0;
+        bool done = false;
+        const size_t start = out.size();
+        heap.clear();
+        auto composite_until = [&](double limit) {
+          while (!heap.empty() && heap.back().key <= limit) {
+            if (T < t_min) {
+              done = true;
+              return;
+            }
+            const Frag& fr = heap.back();
+            C += fr.c * fr.a * T;
+            Z += fr.z * fr.a * T;
+            T *= 1.0 - fr.a;
+            out.push_back(fr.face);
+            heap.pop_back();
+          }
+          if (T < t_min) done = true;
+        };
+        for (std::int64_t k = 0; k < rlen; ++k) {
+          const RowEntry& b = row[k];
+          ++scanned;
+          if (!heap.empty() && heap.back().key <= double(b.zmin)) {
+            composite_until(double(b.zmin));
+            if (done) break;
+          }
+          if (j < b.x0 || j > b.x1) continue;
+          ++tested;
+          const Face& fc = p.faces[b.slot];
+          const double cov = coverage(fc, u, v, w, nullptr);
+          if (cov <= 0.0) continue;
+          double den;
+          int which;
+          const double z = frag_depth(fc, d, &den, &which);
+          Frag fr{cov < 1.0 ? z + (fc.zmax - fc.zmin) : z, z, fc.id, fc.opacity * cov, frag_diffuse(fc, d)};
+          heap.insert(std::upper_bound(heap.begin(), heap.end(), fr, farther), fr);
+        }
+        if (!done) composite_until(std::numeric_limits<double>::infinity());
+        const size_t pix = size_t(i) * W + j;
+        r.diffuse[pix] = float(C);
+        r.depth[pix] = float(Z);
+        r.alpha[pix] = float(1.0 - T);
+        r.pix_range[2 * pix] = index_t(start);  // local for now, made global below
+        r.pix_range[2 * pix + 1] = index_t(out.size() - start);
+      }
+    }
+    n_scanned += scanned;
+    n_tested += tested;
+  });
+  r.num_scanned = n_scanned;
+  r.num_tested = n_tested;
+
+  std::vector<std::int64_t> base(size_t(tiles) + 1, 0);
+  for (std::int64_t t = 0; t < tiles; ++t) base[t + 1] = base[t] + std::int64_t(tile_frags[t].size());
+  if (base[tiles] > std::int64_t(std::numeric_limits<index_t>::max())) {
+    throw std::invalid_argument(std::string(fn) + ": too many fragments for int32 offsets");
+  }
+  r.frag_face.resize(size_t(base[tiles]));
+  for (std::int64_t t = 0; t < tiles; ++t) std::copy(tile_frags[t].begin(), tile_frags[t].end(), r.frag_face.begin() + base[t]);
+  for (index_t i = 0; i < H; ++i)
+    for (index_t j = 0; j < W; ++j) {
+      const std::int64_t t = std::int64_t(i / kTile) * p.tiles_x + j / kTile;
+      r.pix_range[2 * (size_t(i) * W + j)] += index_t(base[t]);
+    }
+  return r;
+}
+
+SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t* faces, index_t F,
+                                    const float* opacity, const RenderCamera& cam, const SoftRenderSettings& s,
+                                    const index_t* frag_face, std::int64_t K, const index_t* pix_range,
+                                    const float* grad_diffuse, const float* grad_depth,
+                                    const float* grad_alpha) {
+  const char* fn = "soft_render_backward";
+  const View view = make_view(cam, fn);
+  validate(faces, F, N, opacity, s, fn);
+  const index_t H = view.H, W = view.W;
+  const std::int64_t P = std::int64_t(H) * W;
+  for (std::int64_t k = 0; k < K; ++k) {
+    if (frag_face[k] < 0 || frag_face[k] >= F) {
+      throw std::invalid_argument(std::string(fn) + ": frag_face holds " + std::to_string(frag_face[k]) +
+                                  ", outside [0, " + std::to_string(F) + ")");
+    }
+  }
+  for (std::int64_t k = 0; k < P; ++k) {
+    const std::int64_t a = pix_range[2 * k], c = pix_range[2 * k + 1];
+    if (a < 0 || c < 0 || a + c > K) {
+      throw std::invalid_argument(std::string(fn) + ": pix_range does not match frag_face");
+    }
+  }
+  const int threads = thread_count(s.num_threads);
+  // Only the faces that own fragments need their setup (reusing the forward's culling rules); they get
+  // compact slots in order of first appearance, which keeps the per-thread accumulators local.
+  std::vector<index_t> slot_of(static_cast<size_t>(F), kNone);
+  std::vector<index_t> face_of;
+  std::vector<index_t> frag_slot(static_cast<size_t>(K));
+  for (std::int64_t k = 0; k < K; ++k) {
+    index_t& sl = slot_of[frag_face[k]];
+    if (sl == kNone) {
+      sl = index_t(face_of.size());
+      face_of.push_back(frag_face[k]);
+    }
+    frag_slot[k] = sl;
+  }
+  const std::int64_t S_ = std::int64_t(face_of.size());
+  std::unique_ptr<Face[]> fdata(new Face[size_t(std::max<std::int64_t>(S_, 1))]);  // not zero-filled
+  std::vector<std::uint8_t> bad(static_cast<size_t>(std::max<std::int64_t>(S_, 1)), 0);
+  const std::int64_t chunk = 4096;
+  parallel_for((S_ + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
+    const std::int64_t end = std::min<std::int64_t>(S_, (c + 1) * chunk);
+    for (std::int64_t k = c * chunk; k < end; ++k) {
+      const index_t f = face_of[k];
+      bad[k] = double(opacity[f]) <= s.min_opacity ||
+               !setup_face(view, verts, faces + 3 * std::int64_t(f), double(opacity[f]), s.edge_width, fdata[k]);
+    }
+  });
+  for (std::int64_t k = 0; k < S_; ++k) {
+    if (bad[k]) {
+      throw std::invalid_argument(std::string(fn) + ": fragment of face " + std::to_string(face_of[k]) +
+                                  " which the forward would not draw (inputs changed since the forward?)");
+    }
+  }
+
+  const int nthreads = std::max(1, int(std::min<std::int64_t>(threads, H)));
+  std::vector<std::vector<double>> gP(static_cast<size_t>(nthreads)), gO(static_cast<size_t>(nthreads));
+  const double w = s.edge_width;
+  const std::int64_t rows_per = 4;
+  parallel_for((std::int64_t(H) + rows_per - 1) / rows_per, nthreads, [&](std::int64_t rb, int tid) {
+    std::vector<double>& gp = gP[size_t(tid)];
+    std::vector<double>& go = gO[size_t(tid)];
+    if (gp.empty()) {
+      gp.assign(size_t(S_) * 9, 0.0);  // per slot: d L / d (P0, P1, P2), camera space
+      go.assign(size_t(S_), 0.0);
+    }
+    struct Rec {
+      double a, T, cov, c, z, den;
+      int which;
+      index_t slot;
+    };
+    std::vector<Rec> recs;
+    for (index_t i = index_t(rb * rows_per); i < std::min<index_t>(H, index_t((rb + 1) * rows_per)); ++i) {
+      for (index_t j = 0; j < W; ++j) {
+        const std::int64_t pix = std::int64_t(i) * W + j;
+        const index_t start = pix_range[2 * pix], cnt = pix_range[2 * pix + 1];
+        if (cnt == 0) continue;
+        const double gD = grad_diffuse[pix], gZ = grad_depth[pix], gA = grad_alpha[pix];
+        if (gD == 0.0 && gZ == 0.0 && gA == 0.0) continue;
+        const double u = j + 0.5, v = i + 0.5;
+        double d[3];
+        view.ray(u, v, d);
+        recs.resize(size_t(cnt));
+        double T = 1.0;
+        for (index_t k = 0; k < cnt; ++k) {
+          Rec& rc = recs[size_t(k)];
+          rc.slot = frag_slot[start + k];
+          const Face& fc = fdata[rc.slot];
+          rc.cov = coverage(fc, u, v, w, nullptr);
+          rc.a = fc.opacity * rc.cov;
+          rc.T = T;
+          rc.c = frag_diffuse(fc, d);
+          rc.z = frag_depth(fc, d, &rc.den, &rc.which);
+          T *= 1.0 - rc.a;
+        }
+        double S = 0.0;
+        for (index_t k = cnt - 1; k >= 0; --k) {
+          const Rec& rc = recs[size_t(k)];
+          const Face& fc = fdata[rc.slot];
+          const double val = gD * rc.c + gZ * rc.z + gA;
+          const double g_a = rc.T * (val - S);
+          S = val * rc.a + (1.0 - rc.a) * S;
+          const double w_frag = rc.a * rc.T;
+          go[rc.slot] += g_a * rc.cov;
+          double g[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};  // d L / d P_i (camera space)
+          // coverage -> screen corners -> camera-space corners
+          const double g_cov = g_a * fc.opacity;
+          if (g_cov != 0.0 && rc.cov < 1.0) {
+            double dq[6];
+            coverage(fc, u, v, w, dq);
+            for (int c = 0; c < 3; ++c) {
+              const double gu = g_cov * dq[2 * c], gv = g_cov * dq[2 * c + 1];
+              if (gu == 0.0 && gv == 0.0) continue;
+              const double* Pc = fc.P[c];
+              const double z = Pc[2];
+              // u = cx - f x / z, v = cy + f y / z
+              g[c][0] += gu * (-view.f / z);
+              g[c][1] += gv * (view.f / z);
+              g[c][2] += gu * (view.f * Pc[0] / (z * z)) + gv * (-view.f * Pc[1] / (z * z));
+            }
+          }
+          // depth
+          const double g_z = gZ * w_frag;
+          if (g_z != 0.0) {
+            if (rc.which >= 0) {
+              g[rc.which][2] += -g_z;
+            } else {
+              // z = det(P0, P1, P2) / (n . d)
+              const double* P0 = fc.P[0];
+              const double* P1 = fc.P[1];
+              const double* P2 = fc.P[2];
+              double dn[3][3], dd[3][3], diff[3];
+              cross3(P1, P2, dn[0]);
+              cross3(P2, P0, dn[1]);
+              cross3(P0, P1, dn[2]);
+              for (int k2 = 0; k2 < 3; ++k2) diff[k2] = P1[k2] - P2[k2];
+              cross3(diff, d, dd[0]);
+              for (int k2 = 0; k2 < 3; ++k2) diff[k2] = P2[k2] - P0[k2];
+              cross3(diff, d, dd[1]);
+              for (int k2 = 0; k2 < 3; ++k2) diff[k2] = P0[k2] - P1[k2];
+              cross3(diff, d, dd[2]);
+              for (int c = 0; c < 3; ++c)
+                for (int k2 = 0; k2 < 3; ++k2) g[c][k2] += g_z * (dn[c][k2] - rc.z * dd[c][k2]) / rc.den;
+            }
+          }
+          // diffuse = |n . d| / (|n| |d|)
+          const double g_c = gD * w_frag;
+          if (g_c != 0.0 && fc.nlen > 0.0) {
+            const double dl = std::sqrt(dot3(d, d));
+            const double nd = dot3(fc.n, d);
+            const double sg = nd >= 0 ? 1.0 : -1.0;
+            const double cosv = nd / (fc.nlen * dl);
+            double gn[3];
+            for (int k2 = 0; k2 < 3; ++k2) gn[k2] = g_c * sg * (d[k2] / dl - cosv * fc.n[k2] / fc.nlen) / fc.nlen;
+            double e1[3], e2[3], g1[3], g2[3];
+            for (int k2 = 0; k2 < 3; ++k2) {
+              e1[k2] = fc.P[1][k2] - fc.P[0][k2];
+              e2[k2] = fc.P[2][k2] - fc.P[0][k2];
+            }
+            cross3(e2, gn, g1);
+            cross3(gn, e1, g2);
+            for (int k2 = 0; k2 < 3; ++k2) {
+              g[1][k2] += g1[k2];
+              g[2][k2] += g2[k2];
+              g[0][k2] -= g1[k2] + g2[k2];
+            }
+          }
+          double* gs = &gp[9 * size_t(rc.slot)];
+          for (int c = 0; c < 3; ++c)
+            for (int k2 = 0; k2 < 3; ++k2) gs[3 * c + k2] += g[c][k2];
+        }
+      }
+    }
+  });
+
+  SoftRenderGrad out;
+  std::vector<double> gv(size_t(N) * 3, 0.0);
+  out.grad_opacity.assign(size_t(F), 0.0f);
+  for (std::int64_t k = 0; k < S_; ++k) {
+    const index_t* tri = faces + 3 * std::int64_t(face_of[k]);
+    double go_sum = 0.0;
+    for (size_t t = 0; t < gP.size(); ++t) {
+      if (gP[t].empty()) continue;
+      const double* gs = &gP[t][9 * size_t(k)];
+      for (int c = 0; c < 3; ++c)
+        for (int k2 = 0; k2 < 3; ++k2) gv[3 * size_t(tri[c]) + k2] += gs[3 * c + k2];
+      go_sum += gO[t][size_t(k)];
+    }
+    out.grad_opacity[size_t(face_of[k])] = float(go_sum);
+  }
+  // camera = R world + t, so d L / d world = R^T d L / d camera
+  out.grad_verts.assign(size_t(N) * 3, 0.0f);
+  for (index_t n = 0; n < N; ++n) {
+    const double* c = &gv[3 * size_t(n)];
+    for (int k = 0; k < 3; ++k)
+      out.grad_verts[3 * size_t(n) + k] = float(view.R[k] * c[0] + view.R[3 + k] * c[1] + view.R[6 + k] * c[2]);
+  }
+  return out;
+}
+
+}  // namespace dmesh
