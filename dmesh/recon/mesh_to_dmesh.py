@@ -46,6 +46,7 @@ class MeshToDMeshConfig:
     kmeans_fraction: float = 0.1  # k-means clusters per unwanted-face sample
     knn_every: int = 100          # add kNN triples on GT vertices every this many steps
     knn_k: int = 8                # neighbours for kNN triples
+    decay: float = 1.0            # lr and update bound are multiplied by this after every insertion period
     grad_clip: float = 0.1        # global gradient-norm clip
     re_target: float = 0.999      # early stop when RE exceeds this ...
     fp_target: float = 0.01       # ... and FP is below this
@@ -56,6 +57,8 @@ class MeshToDMeshConfig:
         for name in ("steps", "insert_every", "knn_every", "knn_k"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"MeshToDMeshConfig.{name} must be positive, got {getattr(self, name)}")
+        if not 0 < self.decay <= 1:
+            raise ValueError(f"MeshToDMeshConfig.decay must be in (0, 1], got {self.decay}")
         for name in ("lr", "update_bound", "max_perturb", "margin", "grad_clip", "ray_length"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"MeshToDMeshConfig.{name} must be positive, got {getattr(self, name)}")
@@ -68,7 +71,7 @@ def paper_config(**overrides) -> MeshToDMeshConfig:
 
 def fast_config(**overrides) -> MeshToDMeshConfig:
     """A CPU budget: larger steps and more frequent insertion, so small meshes converge in ~1-2K steps."""
-    base = dict(steps=3000, lr=1e-3, update_bound=1e-4, insert_every=500, knn_every=50)
+    base = dict(steps=3000, lr=1e-3, update_bound=1e-4, insert_every=500, knn_every=50, decay=0.5)
     base.update(overrides)
     return MeshToDMeshConfig(**base)
 
@@ -155,6 +158,7 @@ class _Run:
         self.rng = np.random.default_rng(cfg.seed)
         self.points = torch.tensor(vertices, dtype=torch.float64)
         self.weights = torch.ones(self.g, dtype=torch.float64)
+        self.scale = 1.0  # current lr / update-bound factor (decays per insertion period)
         self._reset_phase()
 
     @property
@@ -164,7 +168,7 @@ class _Run:
     def _reset_phase(self):
         self.points = self.points.detach().clone().requires_grad_(True)
         self.weights = self.weights.detach().clone().requires_grad_(True)
-        self.optim = torch.optim.Adam([self.points, self.weights], lr=self.cfg.lr)
+        self.optim = torch.optim.Adam([self.points, self.weights], lr=self.cfg.lr * self.scale)
         self.cache = NeighbourCache(self.n)
         self.candidates = CandidateFaces(self.n)
         self.candidates.add(self.gt_faces)
@@ -247,9 +251,10 @@ class _Run:
         torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip)
         before = [prm.detach().clone() for prm in params]
         self.optim.step()
+        bound = cfg.update_bound * self.scale
         with torch.no_grad():
             for prm, old in zip(params, before):
-                prm.copy_(torch.maximum(torch.minimum(prm, old + cfg.update_bound), old - cfg.update_bound))
+                prm.copy_(torch.maximum(torch.minimum(prm, old + bound), old - bound))
             start = torch.from_numpy(self.start)
             self.points[: self.g] = torch.maximum(torch.minimum(self.points[: self.g], start + cfg.max_perturb),
                                                   start - cfg.max_perturb)
@@ -304,6 +309,7 @@ def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
         t1 = time.perf_counter()
         timings["wdt"] += t1 - t0
         if step % cfg.insert_every == 0:
+            run.scale = cfg.decay ** (step // cfg.insert_every)
             inserted = run.insert_points(pd)
             tri = triangulate(run.points, run.weights)
             pd = PowerDiagram(run.points, run.weights, tri.tets, tri.neighbors)
