@@ -29,24 +29,26 @@ if [ ! -x .venv/bin/python ]; then
 fi
 VPY=.venv/bin/python
 PIP=(.venv/bin/python -m pip --disable-pip-version-check -q)
+# pip warns about every missing folder of a local index configured on some machines; keep real errors only.
+pip_install() { "${PIP[@]}" install "$@" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2); }
 
 # torch first and pinned to the CPU build, so no later requirement pulls a CUDA build.
 if ! "$VPY" -c "import torch, sys; sys.exit(0 if torch.__version__.startswith('2.13.0') else 1)" 2>/dev/null; then
   echo "setup: installing torch==2.13.0 (CPU)"
-  "${PIP[@]}" install --upgrade pip
-  "${PIP[@]}" install torch==2.13.0
+  pip_install --upgrade pip
+  pip_install torch==2.13.0
 fi
 
 # Build requirements in the venv so the editable install needs no isolated build environment.
 "$VPY" -c "import scikit_build_core, nanobind" 2>/dev/null || \
-  "${PIP[@]}" install "scikit-build-core>=0.10" "nanobind>=2.0" ninja
+  pip_install "scikit-build-core>=0.10" "nanobind>=2.0" ninja
 
 stamp=.venv/.dmesh-installed
 inputs=$(cat pyproject.toml native/CMakeLists.txt native/src/* native/bindings/* | sha1sum | cut -c1-40)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$inputs" ] || ! "$VPY" -c "import dmesh._native" 2>/dev/null; then
   echo "setup: installing the project (editable) and building the native module"
-  "${PIP[@]}" install --no-build-isolation -e ".[harness,test]" torch==2.13.0
+  pip_install --no-build-isolation -e ".[harness,test]" torch==2.13.0
   # pyrender pins PyOpenGL 3.1.0, whose OSMesa binding is broken; 3.1.10 works (deps_bench.md section 6).
-  "${PIP[@]}" install --no-deps "PyOpenGL==3.1.10"
+  pip_install --no-deps "PyOpenGL==3.1.10"
   echo "$inputs" > "$stamp"
 fi

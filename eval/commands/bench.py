@@ -1,0 +1,106 @@
+"""`dmesh bench`: run a sweep (methods x shapes x input kinds x configs x seeds) into the results store.
+
+A sweep comes from a YAML file (see `eval/sweeps/*.yaml`), from flags, or both (flags override the file).
+Finished runs are never recomputed; an interrupted sweep resumes where it stopped.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "bench"
+HELP = "run a benchmark sweep (resumable; results in SQLite) and print per-class means"
+
+
+def add_sweep_arguments(p: argparse.ArgumentParser, work_default: str) -> None:
+    """Flags shared by `bench` and `reproduce-tables`."""
+    p.add_argument("--methods", nargs="+", metavar="METHOD", help="registered method names")
+    p.add_argument("--shapes", nargs="+", metavar="SHAPE",
+                   help="synthetic shape names (name or name@seed) or mesh files (relative to --data-root)")
+    p.add_argument("--inputs", nargs="+", choices=("pointcloud", "multiview", "mesh"), help="input kinds")
+    p.add_argument("--seeds", nargs="+", type=int, metavar="SEED", help="run seeds")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="sets",
+                   help="override a sweep field (n_points=20000) or a method's config (psr.depth=7); repeatable")
+    p.add_argument("--data-root", help="folder of real meshes (default: $DMESH_DATA, else ../shared/meshes)")
+    p.add_argument("--work", default=work_default,
+                   help=f"work folder: input cache, meshes, store (default: {work_default})")
+    p.add_argument("--db", help="SQLite results store (default: WORK/results.sqlite)")
+    p.add_argument("--jobs", type=int, default=1, help="concurrent runs (default: 1)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local process pool (default) or Ray tasks (needs pip install -e .[ray])")
+    p.add_argument("--timeout", type=float, help="per-run wall-clock limit in seconds (default: the sweep's)")
+    p.add_argument("--retry-failed", action="store_true", help="rerun runs stored as failed")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("sweep", nargs="?", help="sweep YAML file (optional when --methods and --shapes are given)")
+    add_sweep_arguments(p, "runs/bench")
+    p.add_argument("--report", metavar="DIR", help="also write reports (tables, figures, index.html) into DIR")
+
+
+def build_sweep(args, path=None):
+    """The `Sweep` of the YAML file `path` (default: `args.sweep`), or of the flags alone, with the flags
+    applied on top."""
+    from eval.sweep import Sweep
+
+    path = path or getattr(args, "sweep", None)
+    if path:
+        sweep = Sweep.from_yaml(path)
+    else:
+        if not args.methods or not args.shapes:
+            raise ValueError("give a sweep YAML file, or both --methods and --shapes")
+        sweep = Sweep(methods=tuple(args.methods), shapes=tuple(args.shapes))
+    d = sweep.to_dict()
+    for flag, key in (("methods", "methods"), ("shapes", "shapes"), ("inputs", "inputs"), ("seeds", "seeds")):
+        v = getattr(args, flag, None)
+        if v:
+            d[key] = list(v)
+    if getattr(args, "data_root", None):
+        d["data_root"] = args.data_root
+    if getattr(args, "timeout", None):
+        d["timeout_s"] = float(args.timeout)
+    return Sweep.from_dict(d).with_overrides(args.sets or [])
+
+
+def summary_text(db, kinds=None, keys=None) -> str:
+    """Per (method, class) means of the runs `keys` (None: the latest of each) as a plain-text table."""
+    from eval.reports import select_runs, tables
+    from eval.store import Store
+
+    with Store(db) as store:
+        df = select_runs(store.dataframe(), keys)
+    lines = []
+    for kind in kinds or ("pointcloud", "multiview", "mesh"):
+        rows = tables.table2(df, kind)
+        if not rows:
+            continue
+        w = max(12, max(len(r["method"]) for r in rows))
+        lines.append(f"{kind} input (normalised frame, max |v| = 1; CD x1e-3, means over n done runs)")
+        lines.append(f"{'method':<{w}}  {'class':<7} {'n':>3} {'fail':>4} {'CD p2s':>9} {'CD L1':>9} {'time s':>9}"
+                     f" {'paper CD':>9}")
+        for r in rows:
+            def c(v, s=1.0):
+                return tables.fmt(v * s) if v is not None else "-"
+            lines.append(f"{r['method']:<{w}}  {r['category']:<7} {r['n']:>3} {r['failed']:>4} "
+                         f"{c(r['cd_p2s'], 1e3):>9} {c(r['cd_l1'], 1e3):>9} {c(r['time_s']):>9} "
+                         f"{c(r['paper_cd_l1'], 1e3):>9}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from eval.runner import RunnerConfig, run_sweep
+
+    sweep = build_sweep(args)
+    runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
+                          retry_failed=args.retry_failed)
+    summary = run_sweep(sweep, runner)
+    print(summary_text(runner.db_path, sweep.inputs, summary.keys), end="")
+    print(f"{summary.total} runs: {summary.done} done now, {summary.failed} failed now, "
+          f"{summary.skipped} already stored; store {runner.db_path}")
+    if args.report:
+        from eval.reports import write_reports
+
+        paths = write_reports(runner.db_path, args.report, work=Path(args.work), keys=summary.keys)
+        print(f"wrote {len(paths)} report files; open {Path(args.report) / 'index.html'}")
+    return 0

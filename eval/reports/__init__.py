@@ -1,0 +1,196 @@
+"""Reports regenerated from the results store (never edited by hand).
+
+`write_reports(db, out, work)` writes into `out`:
+
+    table2_pointcloud.md/.csv, table2_multiview.md/.csv   CD and time by closed / open / mixed (paper's Table 2)
+    table1.md/.csv                                        RE / FP of mesh-to-DMesh runs (paper's Table 1)
+    figures/bars_<kind>.png                               per-class bar plots of CD and time
+    figures/renders_<kind>_<shape>.png                    GT, input and each method's mesh side by side
+    index.html                                            links and shows all of the above
+
+Modules: `tables` (aggregation, Markdown / CSV), `figures` (renders, plots), `html` (the index page),
+`paper_numbers` (the paper's published Tables 1 and 2).
+"""
+from __future__ import annotations
+
+import html as _html
+import logging
+from datetime import datetime, timezone
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+INPUT_KINDS = ("pointcloud", "multiview")
+
+
+def select_runs(df, keys=None):
+    """The runs a report shows: those with `keys` when given (a sweep's runs), else the latest run of every
+    (method, config, shape, input kind, input settings, seed), so results of older code versions that
+    remain in the store are not averaged in."""
+    if df is None or not len(df):
+        return df
+    if keys is not None:
+        return df[df["key"].isin(set(keys))]
+    import json
+
+    ident = df.apply(lambda r: json.dumps([r["method"], r["config_label"], r["shape"], r["input_kind"],
+                                           r["inputs_json"], int(r["seed"])], sort_keys=True, default=str), axis=1)
+    order = df.assign(_ident=ident).sort_values("started_at", na_position="first")
+    return order.drop_duplicates("_ident", keep="last").drop(columns="_ident").sort_index()
+
+
+def write_reports(db: str | Path, out: str | Path, work: str | Path | None = None, title: str = "DMesh harness report",
+                  renders: bool = True, progress=None, keys=None) -> list[Path]:
+    """Regenerates every report file under `out` from the store `db`; returns the written paths.
+
+    Args:
+        db: SQLite results store.
+        out: report folder (created).
+        work: the sweep's work folder (input cache, used for GT / input renders); default: the store's folder.
+        title: heading of index.html.
+        renders: False skips the pyrender figures (tables and bar plots only).
+        keys: report only these run keys (e.g. a sweep's); None: the latest run of each configuration.
+    Raises:
+        FileNotFoundError: `db` does not exist.
+    """
+    from eval.reports import figures, tables
+    from eval.reports.html import table_html, write_index
+    from eval.store import Store
+
+    db = Path(db)
+    if not db.is_file():
+        raise FileNotFoundError(f"results store {db} not found")
+    out = Path(out)
+    work = Path(work) if work else db.parent
+    with Store(db) as store:
+        df = select_runs(store.dataframe(), keys)
+    counts = df["status"].value_counts().to_dict() if len(df) else {}
+    written: list[Path] = []
+    sections: list[tuple[str, str]] = []
+    figdir = out / "figures"
+    for kind in INPUT_KINDS:
+        sub = df[df["input_kind"] == kind] if len(df) else df
+        n_samples = _first_setting(sub, "metric_samples")
+        md, csv = tables.write_table2(df, out, kind, n_samples)
+        written += [md, csv]
+        rows = tables.table2(df, kind)
+        label = {"pointcloud": "point cloud", "multiview": "multi-view"}[kind]
+        body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV (raw units)</a></p>",
+                f"<p class='note'>{_html.escape(tables.FRAME_NOTE)} CD values x1e-3; means over successful runs "
+                f"(n) with failures counted; metric samples per side N = {n_samples or 'n/a'}. "
+                f"Shaded columns: the paper's published numbers (its own shapes and GPU), for reference.</p>"]
+        if rows:
+            cols = [("method", "method", None), ("category", "class", None), ("n", "n", 1), ("failed", "failed", 1),
+                    ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
+            if any("fscore" in r for r in rows):
+                cols.append(("fscore", "F-score", 1))
+            if any("normal_consistency" in r for r in rows):
+                cols.append(("normal_consistency", "NC", 1))
+            cols += [("paper_cd_l1", "paper CD (x1e-3)", 1e3, ".2f"), ("paper_time_s", "paper time (s)", 1, ".2f")]
+            body.append(table_html(rows, cols, paper_cols=("paper_cd_l1", "paper_time_s")))
+            bars = figures.bar_plots(rows, figdir / f"bars_{kind}.png", f"Table 2, {label} input: CD and time by class")
+            if bars:
+                written.append(bars)
+                body.append(f"<img src='figures/{bars.name}' alt='bar plots {label}'>")
+            failures = sub[sub["status"] == "failed"] if len(sub) else sub
+            if len(failures):
+                frows = [{"method": tables.method_label(r["method"], r["config_label"]), "shape": r["shape"],
+                          "seed": int(r["seed"]), "error": r["error"] or ""} for _, r in failures.iterrows()]
+                fcols = [("method", "method", None), ("shape", "shape", None), ("seed", "seed", 1),
+                         ("error", "error", None)]
+                body.append("<h3>Failed runs</h3>" + table_html(frows, fcols))
+        else:
+            body.append(f"<p>No {label} runs in the store yet.</p>")
+        sections.append((f"Table 2: {label} input", "\n".join(body)))
+
+    md1, csv1 = tables.write_table1(df, out)
+    written += [md1, csv1]
+    t1 = tables.table1(df)
+    body = [f"<p class='links'><a href='{md1.name}'>Markdown</a> <a href='{csv1.name}'>CSV</a></p>"]
+    if t1:
+        body.append(table_html(t1, [("shape", "shape", None), ("method", "method", None), ("RE", "RE (%)", 100, ".2f"),
+                                    ("FP", "FP (%)", 100, ".2f"), ("steps", "steps", 1), ("time_s", "time (s)", 1),
+                                    ("paper_RE", "paper RE (%)", 100, ".2f"), ("paper_FP", "paper FP (%)", 100, ".2f")],
+                                paper_cols=("paper_RE", "paper_FP")))
+    else:
+        body.append("<p>No mesh-to-DMesh runs in the store yet (the paper's Table 1 is in the Markdown file).</p>")
+    sections.append(("Table 1: mesh to DMesh (RE / FP)", "\n".join(body)))
+
+    if renders and len(df):
+        figs = render_figures(df, db, work, figdir, progress=progress)
+        written += [p for _, p in figs]
+        if figs:
+            body = "\n".join(f"<h3>{_html.escape(cap)}</h3><img src='figures/{p.name}' alt='{_html.escape(cap)}'>"
+                             for cap, p in figs)
+            sections.append(("Renders: GT, input and each method", body))
+
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    meta = (f"Generated {stamp} from <code>{_html.escape(str(db))}</code>: "
+            + ", ".join(f"{v} {k}" for k, v in sorted(counts.items())) + " runs.")
+    written.append(write_index(out, sections, title, meta))
+    return written
+
+
+def _first_setting(df, key):
+    if df is None or not len(df) or "inputs_json" not in df.columns:
+        return None
+    for v in df["inputs_json"]:
+        if isinstance(v, dict) and key in v:
+            return v[key]
+    return None
+
+
+def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> list[tuple[str, Path]]:
+    """One side-by-side figure per (input kind, shape): GT, input, then each method's mesh with its CD."""
+    from eval.reports import figures, tables
+    from eval.runner import input_path, resolve_mesh_path, shape_dir
+    from eval.sweep import ShapeRef
+
+    if progress is None:
+        from eval.progress import progress
+    cache = work / "renders"
+    out = []
+    groups = list(df.groupby(["input_kind", "category", "shape"], sort=True))
+    order = {"pointcloud": 0, "multiview": 1}
+    groups.sort(key=lambda g: (order.get(g[0][0], 9), ("closed", "open", "mixed").index(g[0][1])
+                               if g[0][1] in ("closed", "open", "mixed") else 9, g[0][2]))
+    for (kind, category, shape), g in progress(groups, desc="renders", unit="figure", leave=False):
+        try:
+            first = g.sort_values("seed").iloc[0]
+            settings = first["inputs_json"] if isinstance(first["inputs_json"], dict) else {}
+            ref = ShapeRef(id=shape, kind="file", source="", gt_hash=first["gt_hash"] or "")
+            radius = float(settings.get("radius", 1.0))
+            gt = shape_dir(work, ref, radius) / "gt.ply"
+            panels = []
+            panels.append(("ground truth", figures.cached_render(gt, cache) if gt.is_file()
+                           else figures._placeholder("GT missing")))
+            if kind == "pointcloud" and "n_points" in settings:
+                p = input_path(work, ref, kind, settings, int(first["seed"]))
+                if p.is_file():
+                    panels.append((f"input: {settings['n_points']} points", figures.cached_render(p, cache, "points")))
+            elif kind == "multiview" and "views" in settings:
+                p = input_path(work, ref, kind, settings, int(first["seed"]))
+                thumb = figures.multiview_thumbnail(p) if p.exists() else None
+                if thumb is not None:
+                    panels.append((f"input: {settings['views']} views (one shown)", thumb))
+            seed0 = g[g["seed"] == first["seed"]]
+            for _, r in seed0.sort_values(["method", "config_label"]).iterrows():
+                label = tables.method_label(r["method"], r["config_label"])
+                mp = resolve_mesh_path(r.to_dict(), db)
+                if r["status"] == "done" and mp is not None and mp.is_file():
+                    cd = r.get("cd_p2s")
+                    cap = f"{label}\nCD p2s {tables.fmt(float(cd) * 1e3)}e-3" if cd is not None and cd == cd else label
+                    panels.append((cap, figures.cached_render(mp, cache)))
+                else:
+                    err = (r.get("error") or r["status"])[:34]
+                    panels.append((f"{label}\n{r['status']}: {err}", figures._placeholder(r["status"])))
+            name = f"renders_{kind}_{_safe(shape)}.png"
+            title = f"{shape} ({category}), {kind} input, seed {int(first['seed'])}"
+            out.append((title, figures.side_by_side(panels, figdir / name, title, cache=cache)))
+        except Exception as exc:  # noqa: BLE001 - a figure that cannot be drawn must not lose the tables
+            log.warning("renders for %s / %s skipped: %s", kind, shape, exc)
+    return out
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_@." else "_" for c in name)

@@ -1,0 +1,462 @@
+"""The experiment runner: prepares inputs once, runs every pending run of a sweep, stores each result.
+
+Flow of `run_sweep(sweep, work, ...)`:
+
+1. Resolve shapes and prepare each GT once (cached under `WORK/inputs/<shape>-<gt hash>/`): the GT is
+   loaded or generated, classified (closed / open / mixed) and normalised (vertex mean at the origin, max
+   vertex norm `sweep.radius`), then written as `gt.ply` beside `meta.json`.
+2. Expand the sweep into runs (`eval.sweep.expand`) and skip every run whose key is `done` (or `failed`,
+   unless `retry_failed`). Runs left `running` by a killed process are redone.
+3. Prepare the inputs of the pending runs once per (shape, input kind, seed), cached beside the GT:
+   `pc_n<N>_s<seed>.npz` holds `points` (N, 3) float32 and `normals` (N, 3) float32 (area-uniform samples
+   of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).
+4. Run each pending run in a worker process (a local pool of `jobs` forked processes, each run in its own
+   process so that a per-run timeout or a crash in native code cannot take the sweep down; or Ray tasks with
+   `executor="ray"`). The worker calls the method, writes the output mesh atomically to
+   `WORK/meshes/<key[:2]>/<key>.ply`, computes `eval.metrics.compute_metrics(pred, gt)` in the normalised GT
+   frame, and hands the result back; only this (parent) process writes the store.
+
+Every failure of a run (exception, empty mesh, timeout, worker crash) is stored as a `failed` row with a
+one-line error, and the sweep goes on.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import multiprocessing as mp
+import os
+import shutil
+import signal
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass
+from multiprocessing.connection import wait as mp_wait
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from eval.io import atomic_path, write_text
+from eval.store import Store
+from eval.sweep import RunSpec, ShapeRef, Sweep, build_config, expand, get_method
+
+log = logging.getLogger(__name__)
+
+EXECUTORS = ("local", "ray")
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    """How to execute a sweep (not part of any run key)."""
+
+    work: str                      # work folder: input cache, output meshes, default store
+    db: str | None = None          # SQLite store; None: WORK/results.sqlite
+    jobs: int = 1                  # concurrent runs (worker processes or Ray tasks)
+    executor: str = "local"        # local (process pool) or ray
+    retry_failed: bool = False     # rerun runs stored as failed
+
+    def __post_init__(self):
+        if not isinstance(self.jobs, int) or self.jobs < 1:
+            raise ValueError(f"RunnerConfig.jobs: expected a positive integer, got {self.jobs!r}")
+        if self.executor not in EXECUTORS:
+            raise ValueError(f"RunnerConfig.executor: expected one of {EXECUTORS}, got {self.executor!r}")
+
+    @property
+    def db_path(self) -> Path:
+        return Path(self.db) if self.db else Path(self.work) / "results.sqlite"
+
+
+@dataclass
+class SweepSummary:
+    """What `run_sweep` did: counts of runs by outcome and the store path."""
+
+    total: int = 0
+    skipped: int = 0      # already done (or failed, without retry_failed)
+    done: int = 0
+    failed: int = 0
+    db: str = ""
+    keys: list[str] = dataclasses.field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------------- inputs
+
+def shape_dir(work: str | Path, shape: ShapeRef, radius: float) -> Path:
+    """Cache folder of one GT shape in one normalisation."""
+    safe = "".join(c if c.isalnum() or c in "-_@." else "_" for c in shape.id)
+    return Path(work) / "inputs" / f"{safe}-{shape.gt_hash[:12]}-r{radius:g}"
+
+
+def prepare_gt(shape: ShapeRef, work: str | Path, radius: float = 1.0) -> tuple[ShapeRef, Path]:
+    """Loads or generates, classifies and normalises the GT once; returns (shape with category, gt.ply path)."""
+    folder = shape_dir(work, shape, radius)
+    meta_path, gt_path = folder / "meta.json", folder / "gt.ply"
+    if meta_path.is_file() and gt_path.is_file():
+        meta = json.loads(meta_path.read_text())
+        return dataclasses.replace(shape, category=meta["category"]), gt_path
+    from datasets.normalize import normalize
+
+    if shape.kind == "synthetic":
+        from datasets import synthetic
+
+        mesh = synthetic.generate(shape.source, seed=shape.gen_seed)
+        category = shape.category
+    else:
+        from datasets.meshes import classify, load_mesh
+
+        mesh = load_mesh(shape.source)
+        category = classify(mesh)
+    if category not in ("closed", "open", "mixed"):
+        raise ValueError(f"shape {shape.id}: unexpected category {category!r}")
+    mesh, transform = normalize(mesh, radius=radius)
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_path(gt_path) as tmp:
+        mesh.export(tmp, file_type="ply")
+    meta = {"id": shape.id, "kind": shape.kind, "source": shape.source, "gen_seed": shape.gen_seed,
+            "category": category, "gt_hash": shape.gt_hash, "radius": radius,
+            "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
+            "transform": _jsonable(transform)}
+    write_text(meta_path, json.dumps(meta, indent=2) + "\n")
+    return dataclasses.replace(shape, category=category), gt_path
+
+
+def _jsonable(obj):
+    if hasattr(obj, "to_dict"):
+        obj = obj.to_dict()
+    elif dataclasses.is_dataclass(obj):
+        obj = dataclasses.asdict(obj)
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return obj if isinstance(obj, (int, float, str, bool, type(None))) else str(obj)
+
+
+def load_gt(gt_path: str | Path):
+    """The cached normalised GT as a trimesh.Trimesh (exact vertices and faces, no processing)."""
+    import trimesh
+
+    return trimesh.load(gt_path, process=False, force="mesh")
+
+
+def input_path(work: str | Path, shape: ShapeRef, kind: str, settings: dict, seed: int) -> Path:
+    """Cache path of one prepared input (a .npz file for point clouds, a folder for multi-view)."""
+    folder = shape_dir(work, shape, settings["radius"])
+    if kind == "pointcloud":
+        return folder / f"pc_n{settings['n_points']}_s{seed}.npz"
+    if kind == "multiview":
+        return folder / f"mv_v{settings['views']}_r{settings['resolution']}_d{settings['distance']:g}"
+    return folder / "gt.ply"
+
+
+def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, seed: int, work: str | Path) -> Path:
+    """Creates the cached input of (shape, kind, seed) unless it exists; returns its path."""
+    path = input_path(work, shape, kind, settings, seed)
+    if path.exists():
+        return path
+    if kind == "pointcloud":
+        from datasets.sampling import sample_points
+
+        points, normals = sample_points(load_gt(gt_path), settings["n_points"], seed)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, points=np.asarray(points, np.float32), normals=np.asarray(normals, np.float32))
+    elif kind == "multiview":
+        from datasets.capture import capture
+
+        views = capture(load_gt(gt_path), views=settings["views"], resolution=settings["resolution"],
+                        distance=settings["distance"])
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        try:
+            views.save(tmp)
+            os.replace(tmp, path)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return path
+
+
+def load_inputs(spec: RunSpec, gt_path: Path, work: str | Path):
+    """The `baselines.base.Inputs` of a run, read from the cache."""
+    from baselines.base import Inputs
+
+    path = input_path(work, spec.shape, spec.input_kind, dict(spec.inputs), spec.seed)
+    if spec.input_kind == "pointcloud":
+        with np.load(path) as z:
+            return Inputs(points=z["points"], normals=z["normals"], views=None, seed=spec.seed)
+    if spec.input_kind == "multiview":
+        from datasets.capture import MultiView
+
+        return Inputs(points=None, normals=None, views=MultiView.load(path), seed=spec.seed)
+    # "mesh" input (mesh to DMesh, Table 1): the normalised GT mesh itself, as `inputs.mesh`.
+    inputs = Inputs(points=None, normals=None, views=None, seed=spec.seed)
+    inputs.mesh = load_gt(gt_path)
+    return inputs
+
+
+# --------------------------------------------------------------------------------------------------- one run
+
+def mesh_path_for(work: str | Path, key: str) -> Path:
+    return Path(work) / "meshes" / key[:2] / f"{key}.ply"
+
+
+def one_line(exc: BaseException) -> str:
+    """`Type: message` on one line, at most 500 characters."""
+    msg = " ".join(str(exc).split()) or repr(exc)
+    return f"{type(exc).__name__}: {msg}"[:500]
+
+
+def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=None) -> dict:
+    """Runs one run in this process and returns its outcome (never raises for a failing method).
+
+    `method` is the method object; None looks `spec.method` up in the registry (Ray tasks get the object
+    itself, since a fresh Ray worker only knows the methods registered at import time).
+
+    Returns:
+        {"status": "done", "metrics", "timings", "info", "peak_memory_mb", "mesh_path"} or
+        {"status": "failed", "error": one line}.
+    """
+    try:
+        method = method if method is not None else get_method(spec.method)
+        config, _ = build_config(method, spec.overrides)
+        inputs = load_inputs(spec, Path(gt_path), work)
+        result = method.reconstruct(inputs, config)
+        mesh = result.mesh
+        if mesh is None or len(mesh.faces) == 0:
+            raise ValueError("the method returned an empty mesh")
+        if not np.isfinite(np.asarray(mesh.vertices)).all():
+            raise ValueError("the method returned a mesh with NaN or inf vertices")
+        out = mesh_path_for(work, spec.key)
+        with atomic_path(out) as tmp:
+            mesh.export(tmp, file_type="ply")
+        from eval.metrics import compute_metrics
+
+        # Mesh to DMesh: a method whose output keeps the GT vertices first says how many in its info
+        # ("re_fp_vertices"), which adds RE / FP to the metrics (Table 1).
+        k = (result.info or {}).get("re_fp_vertices")
+        metrics = compute_metrics(mesh, load_gt(gt_path), n=int(spec.inputs.get("metric_samples", 100_000)),
+                                  seed=0, **({"re_fp_vertices": int(k)} if k is not None else {}))
+        timings = {k: float(v) for k, v in dict(result.timings).items()}
+        if "total" not in timings:
+            raise ValueError("the method's timings lack 'total'")
+        return {"status": "done", "metrics": dict(metrics), "timings": timings,
+                "info": _jsonable(dict(result.info or {})), "peak_memory_mb": float(result.peak_memory_mb),
+                "mesh_path": str(out)}
+    except Exception as exc:  # noqa: BLE001 - every failure of a run is a result (stored as failed)
+        log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())
+        return {"status": "failed", "error": one_line(exc)}
+
+
+def _child(spec: RunSpec, gt_path: str, work: str, conn) -> None:
+    # Die with the parent: a killed sweep must not leave orphans computing runs nobody will store.
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    try:
+        outcome = execute_run(spec, gt_path, work)
+    except BaseException as exc:  # noqa: BLE001 - report KeyboardInterrupt etc. as a failure, then exit
+        outcome = {"status": "failed", "error": one_line(exc)}
+    try:
+        conn.send(outcome)
+    finally:
+        conn.close()
+
+
+def _mp_context():
+    # fork: workers inherit the parent's imports and method registry (methods registered at run time, e.g.
+    # by tests, are visible); each run gets a fresh process so timeouts and crashes stay contained.
+    return mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+
+
+def _run_local(pending: list[tuple[RunSpec, Path]], work: str, jobs: int, timeout_s: float,
+               on_start: Callable, on_done: Callable) -> None:
+    ctx = _mp_context()
+    queue = list(pending)
+    active: dict = {}  # conn -> (proc, spec, deadline)
+    while queue or active:
+        while queue and len(active) < jobs:
+            spec, gt_path = queue.pop(0)
+            on_start(spec)
+            parent_conn, child_conn = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_child, args=(spec, str(gt_path), str(work), child_conn), daemon=True)
+            proc.start()
+            child_conn.close()
+            active[parent_conn] = (proc, spec, time.monotonic() + timeout_s)
+        now = time.monotonic()
+        soonest = min(d for _, _, d in active.values())
+        ready = mp_wait(list(active) + [p.sentinel for p, _, _ in active.values()],
+                        timeout=max(0.0, min(soonest - now, 1.0)))
+        for conn in list(active):
+            proc, spec, deadline = active[conn]
+            outcome = None
+            if conn in ready or proc.sentinel in ready:
+                try:
+                    if conn.poll():
+                        outcome = conn.recv()
+                except (EOFError, OSError):
+                    outcome = None
+                if outcome is None and not proc.is_alive():
+                    proc.join()
+                    code = proc.exitcode
+                    sig = f" ({signal.Signals(-code).name})" if code is not None and code < 0 else ""
+                    outcome = {"status": "failed", "error": f"WorkerDied: the worker exited with code {code}{sig}"}
+            if outcome is None and time.monotonic() > deadline:
+                proc.kill()
+                outcome = {"status": "failed", "error": f"Timeout: the run took more than {timeout_s:g} s"}
+            if outcome is not None:
+                proc.join(timeout=5)
+                conn.close()
+                del active[conn]
+                on_done(spec, outcome)
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("the ray executor needs Ray, which is not installed: pip install -e .[ray]") from None
+    return ray
+
+
+def _run_ray(pending: list[tuple[RunSpec, Path]], work: str, jobs: int, timeout_s: float,
+             on_start: Callable, on_done: Callable) -> None:
+    ray = _import_ray()
+    if not ray.is_initialized():
+        ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+    remote = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+    queue = list(pending)
+    active: dict = {}  # ObjectRef -> (spec, deadline)
+    while queue or active:
+        while queue and len(active) < jobs:
+            spec, gt_path = queue.pop(0)
+            on_start(spec)
+            ref = remote.remote(spec, str(gt_path), str(work), get_method(spec.method))
+            active[ref] = (spec, time.monotonic() + timeout_s)
+        ready, _ = ray.wait(list(active), num_returns=1, timeout=1.0)
+        for ref in list(active):
+            spec, deadline = active[ref]
+            outcome = None
+            if ref in ready:
+                try:
+                    outcome = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 - a crashed Ray worker is a failed run
+                    outcome = {"status": "failed", "error": one_line(exc)}
+            elif time.monotonic() > deadline:
+                ray.cancel(ref, force=True)
+                outcome = {"status": "failed", "error": f"Timeout: the run took more than {timeout_s:g} s"}
+            if outcome is not None:
+                del active[ref]
+                on_done(spec, outcome)
+
+
+# --------------------------------------------------------------------------------------------------- sweep
+
+def resolve_and_prepare_shapes(sweep: Sweep, work: str | Path, progress=None) -> tuple[list[ShapeRef], dict]:
+    """Resolves the sweep's shapes and prepares their GT; returns (shapes, {shape id: gt path})."""
+    from eval.progress import progress as bar
+
+    refs = sweep.resolved_shapes()
+    shapes, gts = [], {}
+    for ref in (progress or bar)(refs, desc="ground truth", unit="shape", leave=False):
+        ref, gt = prepare_gt(ref, work, sweep.radius)
+        shapes.append(ref)
+        gts[ref.id] = gt
+    return shapes, gts
+
+
+def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
+    """Runs every pending run of `sweep` and stores the outcomes; see the module docstring.
+
+    Raises:
+        ValueError: unknown method, shape or config key (before anything runs); Ray missing.
+    """
+    from eval.progress import progress
+
+    work = Path(runner.work)
+    # Validate methods, shapes and config keys before preparing anything: a typo costs nothing and
+    # leaves no output behind.
+    if not expand(sweep, sweep.resolved_shapes()):
+        kinds = ", ".join(f"{m} takes {get_method(m).input_kind}" for m in sweep.methods)
+        raise ValueError(f"the sweep has no runs: {kinds}, but it asks for {', '.join(sweep.inputs)} input")
+    if runner.executor == "ray":
+        _import_ray()
+    shapes, gts = resolve_and_prepare_shapes(sweep, work)
+    runs = expand(sweep, shapes)
+    summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
+    with Store(runner.db_path) as store:
+        pending = []
+        for spec in runs:
+            status = store.status(spec.key)
+            if status == "done" or (status == "failed" and not runner.retry_failed):
+                summary.skipped += 1
+                continue
+            if status == "running":
+                log.info("run %s (%s on %s) was left running by an interrupted sweep; redoing it",
+                         spec.key[:12], spec.method, spec.shape.id)
+            pending.append(spec)
+        log.info("sweep %s: %d runs, %d already stored, %d to run", sweep.name, len(runs), summary.skipped,
+                 len(pending))
+        if not pending:
+            return summary
+
+        needed = sorted({(s.shape.id, s.input_kind, s.seed) for s in pending})
+        by_id = {s.id: s for s in shapes}
+        for shape_id, kind, seed in progress(needed, desc="inputs", unit="input", leave=False):
+            spec = next(s for s in pending if (s.shape.id, s.input_kind, s.seed) == (shape_id, kind, seed))
+            try:
+                prepare_input(by_id[shape_id], gts[shape_id], kind, dict(spec.inputs), seed, work)
+            except Exception as exc:  # noqa: BLE001 - an input that cannot be prepared fails its runs
+                err = f"input preparation failed: {one_line(exc)}"
+                log.warning("%s %s seed %d: %s", shape_id, kind, seed, err)
+                for s in [s for s in pending if (s.shape.id, s.input_kind, s.seed) == (shape_id, kind, seed)]:
+                    store.mark_running(s.identity())
+                    store.finish(s.key, status="failed", error=err)
+                    summary.failed += 1
+                pending = [s for s in pending if (s.shape.id, s.input_kind, s.seed) != (shape_id, kind, seed)]
+
+        bar = progress(total=len(pending), desc=f"sweep {sweep.name}", unit="run")
+
+        def on_start(spec: RunSpec) -> None:
+            store.mark_running(spec.identity())
+            bar.set_postfix_str(f"{spec.method} / {spec.shape.id} / {spec.input_kind}", refresh=False)
+
+        def on_done(spec: RunSpec, outcome: dict) -> None:
+            if outcome["status"] == "done":
+                mesh_path = outcome["mesh_path"]
+                try:  # store paths relative to the store's folder when possible (movable work folders)
+                    mesh_path = os.path.relpath(mesh_path, runner.db_path.parent)
+                except ValueError:
+                    pass
+                store.finish(spec.key, status="done", metrics=outcome["metrics"], timings=outcome["timings"],
+                             info=outcome.get("info"), peak_memory_mb=outcome.get("peak_memory_mb"),
+                             mesh_path=mesh_path)
+                summary.done += 1
+            else:
+                store.finish(spec.key, status="failed", error=outcome["error"])
+                summary.failed += 1
+                log.warning("%s on %s (%s, seed %d) failed: %s", spec.method, spec.shape.id, spec.input_kind,
+                            spec.seed, outcome["error"])
+            bar.update(1)
+
+        execute = _run_ray if runner.executor == "ray" else _run_local
+        try:
+            execute([(s, gts[s.shape.id]) for s in pending], str(work), runner.jobs, float(sweep.timeout_s),
+                    on_start, on_done)
+        finally:
+            bar.close()
+    return summary
+
+
+def resolve_mesh_path(row: dict, db_path: str | Path) -> Path | None:
+    """Absolute path of a stored run's output mesh (paths are stored relative to the store's folder)."""
+    p = row.get("mesh_path")
+    if not p:
+        return None
+    p = Path(p)
+    return p if p.is_absolute() else (Path(db_path).parent / p)

@@ -1,0 +1,400 @@
+"""Sweep definition: methods x shapes x input kinds x configs x seeds, and the key of every run.
+
+A `Sweep` is a frozen, validated dataclass loadable from YAML (`Sweep.from_yaml`) or built from CLI flags.
+`expand(sweep)` turns it into `RunSpec`s, one per run; a method only runs on the input kind it takes
+(`Method.input_kind`). Each run is keyed by `run_key`: the SHA-256 of the canonical JSON of
+
+    method, shape id, GT hash, input kind, input settings, full config dict, seed, code version
+
+where the GT hash is the SHA-256 of a real mesh's file bytes, or of a synthetic shape's generator name and
+seed, and the code version is the package version plus a hash of the source files the run depends on
+(`code_version`). Same key, same result: the runner never recomputes a finished key.
+
+Shape specs (strings):
+    "torus"                a synthetic shape of `datasets.synthetic.SHAPES`, generator seed 0
+    "torus@3"              the same generator with seed 3
+    "closed/spot.obj"      a mesh file: as given if it exists, else relative to the data root
+Data root: `--data-root` flag, else the `DMESH_DATA` environment variable, else `../shared/meshes`
+relative to the repository.
+
+Input kinds: "pointcloud" (`n_points` area-uniform samples with normals), "multiview" (a `views`-view
+capture at `resolution` and `distance`), and "mesh" (the normalised GT itself, for mesh to DMesh / Table 1;
+use `radius: 0.8` there, the paper's frame for that experiment).
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+log = logging.getLogger(__name__)
+
+REPO = Path(__file__).resolve().parents[1]
+INPUT_KINDS = ("pointcloud", "multiview", "mesh")
+CATEGORIES = ("closed", "open", "mixed")
+MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+
+
+def default_data_root() -> Path:
+    """Data root for real meshes: $DMESH_DATA, else ../shared/meshes beside the repository."""
+    env = os.environ.get("DMESH_DATA")
+    return Path(env) if env else REPO.parent / "shared" / "meshes"
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A benchmark sweep. Every field round-trips through YAML (`to_dict` / `from_dict`)."""
+
+    name: str = "bench"                       # label shown in reports
+    methods: tuple[str, ...] = ()             # registered method names (`baselines.registry.METHODS`)
+    shapes: tuple[str, ...] = ()              # shape specs (see module docstring)
+    inputs: tuple[str, ...] = ("pointcloud",)  # input kinds to run: pointcloud, multiview, mesh
+    seeds: tuple[int, ...] = (0,)             # run seeds (point sampling and the method's own seed)
+    configs: Mapping[str, tuple[Mapping[str, Any], ...]] = field(default_factory=dict)  # method -> overrides list
+    n_points: int = 100_000                   # point-cloud input: area-uniform samples with normals
+    views: int = 64                           # multi-view input: number of views (8 azimuths x 8 elevations)
+    resolution: int = 256                     # multi-view input: image side in pixels
+    distance: float = 2.0                     # multi-view input: camera distance from the origin
+    radius: float = 1.0                       # normalisation: max vertex norm of the GT
+    metric_samples: int = 100_000             # surface samples per side for the metrics
+    timeout_s: float = 1800.0                 # per-run wall-clock limit in seconds
+    data_root: str | None = None              # real meshes' root; None: $DMESH_DATA or ../shared/meshes
+    skip_missing: bool = False                # leave out mesh files that do not exist (with a warning)
+
+    def __post_init__(self):
+        for name in ("methods", "shapes", "inputs", "seeds"):
+            value = getattr(self, name)
+            if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
+                raise TypeError(f"Sweep.{name}: expected a list, got {type(value).__name__}")
+            object.__setattr__(self, name, tuple(value))
+        if not self.methods:
+            raise ValueError("Sweep.methods: at least one method is needed")
+        if not self.shapes:
+            raise ValueError("Sweep.shapes: at least one shape is needed")
+        bad = [k for k in self.inputs if k not in INPUT_KINDS]
+        if bad or not self.inputs:
+            raise ValueError(f"Sweep.inputs: each must be one of {INPUT_KINDS}, got {list(self.inputs)}")
+        if not all(isinstance(s, int) and not isinstance(s, bool) for s in self.seeds) or not self.seeds:
+            raise ValueError(f"Sweep.seeds: expected a non-empty list of integers, got {list(self.seeds)}")
+        for name in ("n_points", "views", "resolution", "metric_samples"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise ValueError(f"Sweep.{name}: expected a positive integer, got {getattr(self, name)!r}")
+        for name in ("distance", "radius", "timeout_s"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"Sweep.{name}: expected a positive number, got {getattr(self, name)!r}")
+        if not isinstance(self.configs, Mapping):
+            raise TypeError(f"Sweep.configs: expected a mapping method -> list of dicts, got "
+                            f"{type(self.configs).__name__}")
+        configs = {}
+        for method, lst in self.configs.items():
+            if isinstance(lst, Mapping):
+                lst = [lst]
+            if not isinstance(lst, (list, tuple)) or not all(isinstance(c, Mapping) for c in lst):
+                raise TypeError(f"Sweep.configs[{method!r}]: expected a list of dicts")
+            configs[str(method)] = tuple(dict(c) for c in lst) or ({},)
+        object.__setattr__(self, "configs", configs)
+        if len(set(self.methods)) != len(self.methods) or len(set(self.shapes)) != len(self.shapes):
+            raise ValueError("Sweep: methods and shapes must not repeat")
+
+    # -- (de)serialisation
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        for k in ("methods", "shapes", "inputs", "seeds"):
+            d[k] = list(d[k])
+        d["configs"] = {m: [dict(c) for c in cs] for m, cs in self.configs.items()}
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "Sweep":
+        unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"sweep: unknown keys {sorted(unknown)}")
+        return cls(**dict(d))
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "Sweep":
+        import yaml
+
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"sweep file {path} not found")
+        d = yaml.safe_load(path.read_text()) or {}
+        if not isinstance(d, Mapping):
+            raise ValueError(f"sweep file {path}: expected a mapping at the top level")
+        return cls.from_dict(d)
+
+    def with_overrides(self, sets: list[str]) -> "Sweep":
+        """Applies `key=value` overrides (values parsed as YAML).
+
+        `field=value` sets a sweep field (e.g. `n_points=20000`); `method.key=value` sets a config
+        key for every config of that method (e.g. `psr.depth=7`).
+        """
+        import yaml
+
+        d = self.to_dict()
+        for s in sets:
+            if "=" not in s:
+                raise ValueError(f"--set {s!r}: expected key=value")
+            key, raw = s.split("=", 1)
+            value = yaml.safe_load(raw)
+            if "." in key:
+                method, ckey = key.split(".", 1)
+                cfgs = d["configs"].get(method) or [{}]
+                d["configs"][method] = [{**c, ckey: value} for c in cfgs]
+            elif key in d:
+                d[key] = value
+            else:
+                raise ValueError(f"--set {s!r}: unknown sweep field {key!r}")
+        return Sweep.from_dict(d)
+
+    def resolved_shapes(self) -> list[ShapeRef]:
+        """The shapes resolved against the data root; missing mesh files are left out with a warning when
+        `skip_missing`, else (like unknown names) raise ValueError."""
+        out = []
+        for spec in self.shapes:
+            try:
+                out.append(resolve_shape(spec, self.root()))
+            except ValueError as exc:
+                if not (self.skip_missing and "no such mesh file" in str(exc)):
+                    raise
+                log.warning("sweep %s: %s; left out (skip_missing)", self.name, exc)
+        if not out:
+            raise ValueError(f"sweep {self.name}: none of its shapes is available")
+        return out
+
+    def root(self) -> Path:
+        return Path(self.data_root) if self.data_root else default_data_root()
+
+    def input_settings(self, kind: str) -> dict:
+        """The settings that define the input of `kind` (they go into the run key)."""
+        base = {"radius": float(self.radius), "metric_samples": self.metric_samples}
+        if kind == "pointcloud":
+            return {**base, "n_points": self.n_points}
+        if kind == "multiview":
+            return {**base, "n_points": self.n_points, "views": self.views, "resolution": self.resolution,
+                    "distance": float(self.distance)}
+        return base
+
+
+@dataclass(frozen=True)
+class ShapeRef:
+    """A resolved shape spec."""
+
+    id: str                 # shape id used in tables ("torus", "torus@3", "spot")
+    kind: str               # "synthetic" or "file"
+    source: str             # synthetic generator name, or the absolute mesh path
+    gen_seed: int = 0       # synthetic generator seed
+    category: str | None = None  # closed/open/mixed; None for a file until it is classified
+    gt_hash: str = ""       # SHA-256 of the file bytes / generator name and seed
+
+    def __post_init__(self):
+        if self.kind not in ("synthetic", "file"):
+            raise ValueError(f"ShapeRef.kind: expected 'synthetic' or 'file', got {self.kind!r}")
+
+
+def resolve_shape(spec: str, data_root: str | Path | None = None) -> ShapeRef:
+    """Resolves a shape spec (see module docstring); raises ValueError for an unknown shape."""
+    spec = str(spec).strip()
+    if spec.lower().endswith(MESH_SUFFIXES) or os.sep in spec:
+        candidates = [Path(spec).expanduser()]
+        if not Path(spec).is_absolute():
+            candidates.append(Path(data_root or default_data_root()) / spec)
+        for p in candidates:
+            if p.is_file():
+                digest = hashlib.sha256(p.read_bytes()).hexdigest()
+                return ShapeRef(id=p.stem, kind="file", source=str(p.resolve()), gt_hash=digest)
+        raise ValueError(f"unknown shape {spec!r}: no such mesh file (looked in "
+                         f"{', '.join(str(c) for c in candidates)})")
+    name, _, seed_txt = spec.partition("@")
+    try:
+        gen_seed = int(seed_txt) if seed_txt else 0
+    except ValueError:
+        raise ValueError(f"unknown shape {spec!r}: the generator seed after '@' must be an integer") from None
+    from datasets import synthetic
+
+    if name not in synthetic.SHAPES:
+        raise ValueError(f"unknown shape {spec!r}; synthetic shapes: {', '.join(sorted(synthetic.SHAPES))}; "
+                         f"or give a mesh file path")
+    category = synthetic.SHAPES[name][0]
+    digest = hashlib.sha256(f"synthetic/{name}/seed={gen_seed}".encode()).hexdigest()
+    return ShapeRef(id=spec, kind="synthetic", source=name, gen_seed=gen_seed, category=category, gt_hash=digest)
+
+
+# --------------------------------------------------------------------------------------------------- code
+
+#: Source trees every run depends on (inputs, baselines and metrics).
+COMMON_TREES = ("datasets", "baselines", "eval/metrics.py", "eval/metrics", "eval/closest_point.py")
+#: Extra trees for methods built on the DMesh library.
+DMESH_TREES = ("dmesh", "native")
+_SOURCE_SUFFIXES = (".py", ".cpp", ".cc", ".h", ".hpp", ".cu", ".cuh", ".txt", ".cmake")
+
+
+def source_hash(trees: tuple[str, ...], root: str | Path = REPO) -> str:
+    """SHA-256 (hex) over the relative paths and bytes of the source files under `trees` of `root`."""
+    return _source_hash(tuple(sorted(trees)), str(root))
+
+
+@functools.lru_cache(maxsize=None)
+def _source_hash(trees: tuple[str, ...], root: str) -> str:
+    h = hashlib.sha256()
+    base = Path(root)
+    for tree in trees:
+        p = base / tree
+        files = [p] if p.is_file() else sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else []
+        for f in files:
+            if f.suffix not in _SOURCE_SUFFIXES or "__pycache__" in f.parts:
+                continue
+            h.update(str(f.relative_to(base)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def package_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("dmesh-harness")
+    except Exception:  # noqa: BLE001 - not installed (plain checkout): fall back to a marker
+        return "0+unknown"
+
+
+def method_trees(method) -> tuple[str, ...]:
+    """The source trees a method's results depend on: its own `code_trees` attribute if it has one,
+    else the common trees, plus `dmesh/` and `native/` for DMesh-based methods."""
+    own = getattr(method, "code_trees", None)
+    if own:
+        return tuple(own)
+    module = getattr(type(method), "__module__", "") or ""
+    fn_module = getattr(getattr(method, "reconstruct", None), "__module__", "") or ""
+    parts = module.split(".") + fn_module.split(".")
+    uses_dmesh = str(getattr(method, "name", "")).startswith("dmesh") or any(p.startswith("dmesh") for p in parts)
+    return COMMON_TREES + (DMESH_TREES if uses_dmesh else ())
+
+
+def code_version(method, root: str | Path = REPO) -> str:
+    """Package version + '+' + the first 16 hex digits of the method's source hash."""
+    return f"{package_version()}+src.{source_hash(method_trees(method), root)[:16]}"
+
+
+# --------------------------------------------------------------------------------------------------- runs
+
+def canonical_json(obj: Any) -> str:
+    """JSON with sorted keys and no whitespace, floats as repr: the hashing form."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def run_key(*, method: str, shape_id: str, gt_hash: str, input_kind: str, input_settings: Mapping,
+            config: Mapping, seed: int, code_version: str) -> str:
+    """The SHA-256 (hex) run key; every argument changes it."""
+    payload = {"method": method, "shape": shape_id, "gt": gt_hash, "input_kind": input_kind,
+               "inputs": dict(input_settings), "config": dict(config), "seed": int(seed), "code": code_version}
+    return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
+
+
+def config_label(overrides: Mapping) -> str:
+    """Short label of config overrides: "depth=7,trim=0.1" ("" for the defaults)."""
+    return ",".join(f"{k}={overrides[k]}" for k in sorted(overrides))
+
+
+def build_config(method, overrides: Mapping):
+    """(config object, config dict): the method's default config with `overrides` applied.
+
+    Works for a frozen dataclass config (validated again by its __post_init__) and for a plain dict.
+    """
+    default = method.default_config()
+    overrides = dict(overrides)
+    if dataclasses.is_dataclass(default):
+        names = {f.name for f in dataclasses.fields(default)}
+        unknown = set(overrides) - names
+        if unknown:
+            raise ValueError(f"method {method.name}: unknown config keys {sorted(unknown)}; "
+                             f"known: {sorted(names)}")
+        cfg = dataclasses.replace(default, **overrides)
+        return cfg, dataclasses.asdict(cfg)
+    if default is None:
+        default = {}
+    if not isinstance(default, Mapping):
+        raise TypeError(f"method {method.name}: default_config() must return a dataclass or a dict")
+    unknown = set(overrides) - set(default)
+    if unknown and default:
+        raise ValueError(f"method {method.name}: unknown config keys {sorted(unknown)}; known: {sorted(default)}")
+    cfg = {**default, **overrides}
+    return cfg, dict(cfg)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep, fully resolved."""
+
+    key: str
+    method: str
+    overrides: Mapping[str, Any]   # config overrides (the config itself is rebuilt in the worker)
+    config: Mapping[str, Any]      # the full config dict (in the key)
+    config_label: str
+    shape: ShapeRef
+    input_kind: str
+    inputs: Mapping[str, Any]      # input settings (in the key)
+    seed: int
+    code_version: str
+
+    def identity(self) -> dict:
+        """The store columns that identify the run (without results)."""
+        return {"key": self.key, "method": self.method, "config_label": self.config_label,
+                "shape": self.shape.id, "category": self.shape.category or "unknown",
+                "input_kind": self.input_kind, "config_json": dict(self.config), "inputs_json": dict(self.inputs),
+                "seed": self.seed, "gt_hash": self.shape.gt_hash, "code_version": self.code_version}
+
+
+def get_method(name: str):
+    """The registered method `name`; ValueError naming the known ones otherwise."""
+    from baselines import registry
+
+    if name not in registry.METHODS:
+        raise ValueError(f"unknown method {name!r}; registered: {', '.join(sorted(registry.METHODS))}")
+    return registry.METHODS[name]
+
+
+def expand(sweep: Sweep, shapes: list[ShapeRef] | None = None) -> list[RunSpec]:
+    """All runs of `sweep`, ordered shape-major (so inputs prepared for a shape are reused at once).
+
+    Args:
+        sweep: the sweep.
+        shapes: resolved shapes (with categories), in the order of `sweep.shapes`; resolved here if None.
+    Raises:
+        ValueError: an unknown method or shape, or a config key the method does not have.
+    """
+    methods = [get_method(m) for m in sweep.methods]
+    unused = [m.name for m in methods if m.input_kind not in sweep.inputs]
+    if unused:
+        log.warning("methods %s take no input kind of this sweep (%s); they are skipped",
+                    ", ".join(unused), ", ".join(sweep.inputs))
+    if shapes is None:
+        shapes = sweep.resolved_shapes()
+    configs = {}
+    for m in methods:
+        configs[m.name] = []
+        for ov in sweep.configs.get(m.name, ({},)):
+            _, cfg = build_config(m, ov)
+            configs[m.name].append((dict(ov), cfg))
+    versions = {m.name: code_version(m) for m in methods}
+    runs = []
+    for shape in shapes:
+        for kind in sweep.inputs:
+            settings = sweep.input_settings(kind)
+            for m in methods:
+                if m.input_kind != kind:
+                    continue
+                for ov, cfg in configs[m.name]:
+                    for seed in sweep.seeds:
+                        key = run_key(method=m.name, shape_id=shape.id, gt_hash=shape.gt_hash, input_kind=kind,
+                                      input_settings=settings, config=cfg, seed=seed,
+                                      code_version=versions[m.name])
+                        runs.append(RunSpec(key=key, method=m.name, overrides=ov, config=cfg,
+                                            config_label=config_label(ov), shape=shape, input_kind=kind,
+                                            inputs=settings, seed=seed, code_version=versions[m.name]))
+    return runs

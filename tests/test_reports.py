@@ -1,0 +1,172 @@
+"""Reports from a hand-made results store: per-class means, counts and failures match hand computations,
+CSV keeps raw units, Markdown shows x1e-3, the paper's numbers sit beside our rows, Table 1 from an RE/FP row,
+and the whole report folder (with index.html) is written without temporary leftovers."""
+from __future__ import annotations
+
+import csv
+import math
+
+import pytest
+
+from eval.reports import paper_numbers, tables, write_reports
+from eval.store import Store
+
+
+def _row(key, method, shape, category, status, cd_p2s=None, cd_l1=None, time_s=None, kind="pointcloud", seed=0,
+         error=None, metrics=None, info=None):
+    base = {"key": key, "method": method, "config_label": "", "shape": shape, "category": category,
+            "input_kind": kind, "config_json": {}, "inputs_json": {"n_points": 1000, "metric_samples": 5000,
+                                                                   "radius": 1.0},
+            "seed": seed, "status": status, "error": error, "gt_hash": "0" * 64, "code_version": "test"}
+    if status == "done":
+        base.update(metrics_json=metrics or {"cd_p2s": cd_p2s, "cd_l1": cd_l1, "f_score": 0.5, "faces": 10},
+                    timings_json={"total": time_s, "solve": time_s / 2}, info_json=info or {}, peak_memory_mb=1.0)
+    return base
+
+
+@pytest.fixture
+def store_path(tmp_path):
+    path = tmp_path / "work" / "results.sqlite"
+    with Store(path) as s:
+        for r in [
+            _row("k1", "psr", "torus", "closed", "done", 1e-3, 7e-3, 2.0),
+            _row("k2", "psr", "sphere", "closed", "done", 3e-3, 9e-3, 4.0),
+            _row("k3", "psr", "trefoil", "closed", "failed", error="RuntimeError: boom"),
+            _row("k4", "psr", "disc", "open", "done", 20e-3, 30e-3, 1.0),
+            _row("k5", "udf_mc", "torus", "closed", "done", 2e-3, 8e-3, 0.5),
+            _row("k6", "udf_mc", "disc", "open", "failed", error="ValueError: empty"),
+            _row("k7", "tsdf", "torus", "closed", "done", 5e-3, 11e-3, 3.0, kind="multiview"),
+        ]:
+            s.upsert(r)
+    return path
+
+
+def test_store_round_trip_and_status_rules(tmp_path):
+    with Store(tmp_path / "s.sqlite") as s:
+        row = _row("a", "psr", "torus", "closed", "done", 1e-3, 2e-3, 1.0)
+        identity = {k: v for k, v in row.items() if not k.endswith(("metrics_json", "timings_json", "info_json"))
+                    and k not in ("status", "error", "peak_memory_mb")}
+        s.mark_running(identity)
+        assert s.status("a") == "running" and s.get("a")["started_at"]
+        s.finish("a", status="done", metrics={"cd_p2s": 1e-3}, timings={"total": 1.0}, mesh_path="m.ply")
+        got = s.get("a")
+        assert got["status"] == "done" and got["metrics_json"] == {"cd_p2s": 1e-3} and got["finished_at"]
+        assert s.counts() == {"done": 1} and s.status("zzz") is None
+        with pytest.raises(ValueError):
+            s.upsert({**identity, "status": "weird"})
+        with pytest.raises(ValueError):
+            s.finish("a", status="running")
+        with pytest.raises(ValueError):
+            s.upsert({**identity, "status": "done", "nope": 1})
+    with Store(tmp_path / "s.sqlite") as s:  # persisted, WAL mode
+        assert s.status("a") == "done"
+        assert s._conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_table2_means_counts_and_paper_column(store_path):
+    with Store(store_path) as s:
+        df = s.dataframe()
+    rows = {(r["method"], r["category"]): r for r in tables.table2(df, "pointcloud")}
+    assert set(rows) == {("psr", "closed"), ("psr", "open"), ("udf_mc", "closed"), ("udf_mc", "open")}
+    r = rows[("psr", "closed")]
+    assert (r["n"], r["failed"]) == (2, 1)
+    assert math.isclose(r["cd_p2s"], 2e-3) and math.isclose(r["cd_l1"], 8e-3) and math.isclose(r["time_s"], 3.0)
+    assert math.isclose(r["fscore"], 0.5)
+    assert r["paper_cd_l1"] == paper_numbers.TABLE2["pointcloud"]["PSR"]["closed"] == 7.15e-3
+    assert r["paper_time_s"] == 10.61
+    r = rows[("udf_mc", "open")]
+    assert (r["n"], r["failed"], r["cd_p2s"], r["paper_cd_l1"]) == (0, 1, None, None)
+    mv = tables.table2(df, "multiview")
+    assert [(x["method"], x["category"], x["n"]) for x in mv] == [("tsdf", "closed", 1)]
+
+
+def test_table2_files_raw_csv_and_scaled_markdown(store_path, tmp_path):
+    with Store(store_path) as s:
+        df = s.dataframe()
+    md, csv_path = tables.write_table2(df, tmp_path / "rep", "pointcloud", n_samples=5000)
+    with open(csv_path) as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0])[:7] == ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "time_s"]
+    psr_closed = next(r for r in rows if r["method"] == "psr" and r["category"] == "closed")
+    assert math.isclose(float(psr_closed["cd_p2s"]), 2e-3) and psr_closed["failed"] == "1"
+    assert float(psr_closed["paper_cd_l1"]) == 7.15e-3
+    text = md.read_text()
+    assert "| psr | closed | 2 | 1 | 2.00 | 8.00 | 3.00 |" in text     # x1e-3 in the Markdown
+    assert "x1e-3" in text and "max vertex norm 1" in text and "N = 5000" in text
+    assert "| PSR | 7.15 | 26.94 | 67.18 | 10.61 |" in text            # the paper's Table 2, verbatim
+    assert "RuntimeError: boom" in text                                # failures are listed, not dropped
+
+
+def test_table1_from_an_re_fp_row(tmp_path):
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        s.upsert(_row("t1", "dmesh_mesh", "bun_zipper_res4_948", "mixed", "done", kind="mesh",
+                      metrics={"re": 0.995, "fp": 0.002, "cd_p2s": 0.0}, info={"steps": 2000}, time_s=12.0))
+        s.upsert(_row("t2", "psr", "torus", "closed", "done", 1e-3, 2e-3, 1.0))  # no RE/FP: not in Table 1
+        df = s.dataframe()
+    rows = tables.table1(df)
+    assert rows == [{"shape": "bun_zipper_res4_948", "method": "dmesh_mesh", "RE": 0.995, "FP": 0.002,
+                     "steps": 2000, "time_s": 12.0, "paper_RE": 0.9978, "paper_FP": 0.0}]
+    md, csv_path = tables.write_table1(df, tmp_path / "rep")
+    assert csv_path.read_text().splitlines()[0] == "shape,method,RE,FP,steps,time_s,paper_RE,paper_FP"
+    text = md.read_text()
+    assert "| bun_zipper_res4_948 | dmesh_mesh | 99.50 | 0.20 | 2000 | 12.0 | 99.78 | 0.00 |" in text
+    assert "| Dragon | 99.72 | 0.55 |" in text
+
+
+def test_empty_store_gives_empty_tables_not_errors(tmp_path):
+    path = tmp_path / "s.sqlite"
+    Store(path).close()
+    written = write_reports(path, tmp_path / "rep", renders=False)
+    names = sorted(p.name for p in written)
+    assert names == sorted(["table2_pointcloud.md", "table2_pointcloud.csv", "table2_multiview.md",
+                            "table2_multiview.csv", "table1.md", "table1.csv", "index.html"])
+    assert "No point cloud runs" in (tmp_path / "rep" / "table2_pointcloud.md").read_text()
+
+
+def test_write_reports_writes_everything_it_links(store_path, tmp_path):
+    out = tmp_path / "rep"
+    written = write_reports(store_path, out, renders=False)
+    assert all(p.is_file() for p in written)
+    assert (out / "figures" / "bars_pointcloud.png").is_file() and (out / "figures" / "bars_multiview.png").is_file()
+    html = (out / "index.html").read_text()
+    for p in written:
+        if p.name != "index.html":
+            assert str(p.relative_to(out)) in html, p
+    assert "7.15" in html and "RuntimeError: boom" in html
+    assert not list(out.rglob("*.tmp"))
+    with pytest.raises(FileNotFoundError):
+        write_reports(tmp_path / "missing.sqlite", tmp_path / "rep2")
+    assert not (tmp_path / "rep2").exists()
+
+
+def test_fmt_fixed_significant_digits():
+    assert [tables.fmt(v) for v in (7.4213, 0.52709, 110.37, 1234.5, 0.0, None, float("nan"))] == \
+        ["7.42", "0.527", "110", "1234", "0", "", ""]
+
+
+def _gl_available() -> bool:
+    try:
+        from datasets.capture import gl_platform
+
+        gl_platform()
+        import pyrender  # noqa: F401
+    except Exception:  # noqa: BLE001 - any failure means no offscreen GL here
+        return False
+    return True
+
+
+@pytest.mark.skipif(not _gl_available(), reason="no offscreen OpenGL (OSMesa / EGL) for pyrender")
+def test_render_shows_the_object_both_sides():
+    import numpy as np
+    import trimesh
+
+    from eval.reports import figures
+
+    img = figures.render(mesh=trimesh.creation.icosphere(subdivisions=2), size=96)
+    assert img.shape == (96, 96, 3) and img.dtype == np.uint8
+    assert (img.min(axis=2) < 250).mean() > 0.3                      # the sphere covers the frame centre
+    # An open sheet seen from its back is drawn (in the back-face colour), not culled away.
+    sheet = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 2, 1], [0, 3, 2]])
+    back = figures.render(mesh=sheet, size=96)
+    assert (back.min(axis=2) < 250).mean() > 0.2

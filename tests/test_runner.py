@@ -1,0 +1,352 @@
+"""The experiment runner and results store: run keys, done / failed rows, resume after a killed process,
+timeouts, worker crashes, and one-line CLI errors for bad inputs.
+
+The methods here are tiny fakes registered into `baselines.registry.METHODS` by the tests only (the convex
+hull of the input points, with an optional delay, failure or invocation counter); they are never shipped.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from eval.store import Store
+from eval.sweep import Sweep, resolve_shape, run_key, source_hash
+
+REPO = Path(__file__).resolve().parents[1]
+#: Small inputs: the fake methods and metrics need few samples.
+SMALL = {"n_points": 1500, "metric_samples": 1500, "views": 4, "resolution": 32}
+
+FAKE_METHOD_SRC = '''
+import os, time
+import numpy as np
+from baselines.base import Method
+
+
+class FakeHull(Method):
+    """Test-only fake: the convex hull of the input points, after `delay` seconds; raises if `fail`;
+    appends its seed to the file `counter` on every call; exits the process hard if `crash`."""
+
+    name = "fake_hull"
+    input_kind = "pointcloud"
+
+    def default_config(self):
+        return {"delay": 0.0, "fail": False, "crash": False, "counter": ""}
+
+    def _run(self, inputs, cfg, sw):
+        import trimesh
+
+        if cfg["counter"]:
+            with open(cfg["counter"], "a") as fh:
+                fh.write(f"{inputs.seed}\\n")
+        time.sleep(float(cfg["delay"]))
+        if cfg["crash"]:
+            os._exit(3)
+        if cfg["fail"]:
+            raise RuntimeError("fake failure: boom")
+        with sw.stage("hull"):
+            mesh = trimesh.convex.convex_hull(np.asarray(inputs.points, np.float64))
+        return mesh, {"steps": 1}
+'''
+
+
+def _fake_class():
+    ns: dict = {}
+    exec(compile(FAKE_METHOD_SRC, "<fake_hull>", "exec"), ns)
+    return ns["FakeHull"]
+
+
+@pytest.fixture
+def fake(monkeypatch):
+    """Registers the fake method (and a failing twin) for the duration of a test."""
+    registry = pytest.importorskip("baselines.registry")
+    pytest.importorskip("eval.metrics")
+    cls = _fake_class()
+    fail_cls = type("FakeFail", (cls,), {"name": "fake_fail",
+                                         "default_config": lambda self: {**cls.default_config(self), "fail": True}})
+    monkeypatch.setitem(registry.METHODS, "fake_hull", cls())
+    monkeypatch.setitem(registry.METHODS, "fake_fail", fail_cls())
+    return registry.METHODS
+
+
+def small_sweep(**kw) -> Sweep:
+    return Sweep(**{"methods": ("fake_hull",), "shapes": ("sphere",), **SMALL, **kw})
+
+
+# --------------------------------------------------------------------------------------------------- keys
+
+def test_run_key_is_stable_and_changes_with_every_part():
+    base = dict(method="psr", shape_id="torus", gt_hash="ab" * 32, input_kind="pointcloud",
+                input_settings={"n_points": 100_000, "radius": 1.0}, config={"depth": 8, "scale": 1.1}, seed=0,
+                code_version="0.1.0+src.0123")
+    k = run_key(**base)
+    assert k == run_key(**base) and len(k) == 64
+    # Dict order does not matter; values do.
+    assert k == run_key(**{**base, "config": {"scale": 1.1, "depth": 8}})
+    for change in ({"config": {"depth": 7, "scale": 1.1}}, {"seed": 1}, {"code_version": "0.1.0+src.4567"},
+                   {"gt_hash": "cd" * 32}, {"input_settings": {"n_points": 50_000, "radius": 1.0}},
+                   {"method": "bpa"}, {"shape_id": "sphere"}, {"input_kind": "multiview"}):
+        assert run_key(**{**base, **change}) != k, change
+
+
+def test_source_hash_changes_with_the_code(tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
+    h1 = source_hash(("pkg",), tmp_path)
+    assert h1 == source_hash(("pkg",), tmp_path)
+    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
+    from eval import sweep as sweep_mod
+
+    sweep_mod._source_hash.cache_clear()
+    assert source_hash(("pkg",), tmp_path) != h1
+
+
+def test_dmesh_methods_depend_on_the_library_sources():
+    from eval.sweep import DMESH_TREES, method_trees
+
+    class Baseline:
+        name = "psr"
+
+    class DMeshLike:
+        name = "dmesh_pc"
+
+    assert not set(DMESH_TREES) & set(method_trees(Baseline()))
+    assert set(DMESH_TREES) <= set(method_trees(DMeshLike()))
+
+
+def test_sweep_yaml_round_trip_and_validation(tmp_path):
+    import yaml
+
+    s = Sweep(methods=("psr", "bpa"), shapes=("torus", "sphere@2"), seeds=(0, 1),
+              configs={"psr": [{"depth": 7}, {"depth": 8}]})
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(s.to_dict()))
+    assert Sweep.from_yaml(path) == s
+    s2 = s.with_overrides(["n_points=2000", "psr.trim_quantile=0.1"])
+    assert s2.n_points == 2000 and s2.configs["psr"] == ({"depth": 7, "trim_quantile": 0.1},
+                                                         {"depth": 8, "trim_quantile": 0.1})
+    for bad in ({"methods": ()}, {"inputs": ("photos",)}, {"seeds": ("x",)}, {"n_points": 0}, {"timeout_s": -1}):
+        with pytest.raises(ValueError):
+            Sweep(**{"methods": ("psr",), "shapes": ("torus",), **bad})
+    with pytest.raises(ValueError, match="unknown sweep field"):
+        s.with_overrides(["nope=1"])
+    with pytest.raises(ValueError, match="unknown shape"):
+        resolve_shape("no_such_shape")
+    with pytest.raises(ValueError, match="no such mesh file"):
+        resolve_shape("closed/missing.obj", tmp_path)
+
+
+def test_bundled_sweeps_load():
+    for path in sorted((REPO / "eval" / "sweeps").glob("*.yaml")):
+        s = Sweep.from_yaml(path)
+        assert s.methods and s.shapes, path
+
+
+# --------------------------------------------------------------------------------------------------- sweeps
+
+def test_sweep_stores_done_rows_then_skips_them(fake, tmp_path):
+    from eval.runner import RunnerConfig, run_sweep
+
+    counter = tmp_path / "calls.txt"
+    sweep = small_sweep(seeds=(0, 1), configs={"fake_hull": [{"counter": str(counter)}]})
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    s = run_sweep(sweep, runner)
+    assert (s.total, s.done, s.failed, s.skipped) == (2, 2, 0, 0)
+    with Store(runner.db_path) as store:
+        rows = store.rows()
+    assert [r["status"] for r in rows] == ["done", "done"]
+    for r in rows:
+        assert r["category"] == "closed" and r["method"] == "fake_hull" and r["input_kind"] == "pointcloud"
+        assert r["metrics_json"]["cd_p2s"] >= 0 and "total" in r["timings_json"]
+        assert r["config_json"]["counter"] == str(counter) and r["code_version"].startswith(("0", "1"))
+        assert (runner.db_path.parent / r["mesh_path"]).is_file()
+        assert r["started_at"] <= r["finished_at"]
+    # Inputs were prepared once per (shape, kind, seed) and cached.
+    cached = sorted(p.name for p in (tmp_path / "work" / "inputs").rglob("*") if p.is_file())
+    assert cached == ["gt.ply", "meta.json", "pc_n1500_s0.npz", "pc_n1500_s1.npz"]
+    assert counter.read_text().split() == ["0", "1"]
+    # A second run recomputes nothing.
+    s = run_sweep(sweep, runner)
+    assert (s.done, s.skipped) == (0, 2) and counter.read_text().split() == ["0", "1"]
+
+
+def test_failing_run_is_recorded_and_the_sweep_goes_on(fake, tmp_path):
+    from eval.runner import RunnerConfig, run_sweep
+
+    sweep = small_sweep(methods=("fake_fail", "fake_hull"))
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    s = run_sweep(sweep, runner)
+    assert (s.done, s.failed) == (1, 1)
+    with Store(runner.db_path) as store:
+        by = {r["method"]: r for r in store.rows()}
+    assert by["fake_fail"]["status"] == "failed"
+    assert by["fake_fail"]["error"] == "RuntimeError: fake failure: boom"
+    assert by["fake_hull"]["status"] == "done"
+    # Failed runs are results too: not retried unless asked.
+    assert run_sweep(sweep, runner).skipped == 2
+    assert run_sweep(sweep, RunnerConfig(work=str(tmp_path / "work"), retry_failed=True)).failed == 1
+
+
+def test_timeout_and_worker_crash_are_failed_runs(fake, tmp_path):
+    from eval.runner import RunnerConfig, run_sweep
+
+    sweep = small_sweep(configs={"fake_hull": [{"delay": 30.0}, {"crash": True}]}, timeout_s=1.5)
+    runner = RunnerConfig(work=str(tmp_path / "work"), jobs=2)
+    t0 = time.monotonic()
+    s = run_sweep(sweep, runner)
+    assert s.failed == 2 and time.monotonic() - t0 < 20
+    with Store(runner.db_path) as store:
+        errors = sorted(r["error"] for r in store.rows())
+    assert errors[0].startswith("Timeout: the run took more than 1.5 s")
+    assert errors[1] == "WorkerDied: the worker exited with code 3"
+
+
+def test_resume_after_killed_process(fake, tmp_path):
+    """Start a sweep of slow fake runs in a subprocess, SIGKILL it once some runs are done, rerun: the
+    finished runs are not recomputed, the one left `running` is redone, and all end done."""
+    from eval.runner import RunnerConfig, run_sweep
+
+    counter, work = tmp_path / "calls.txt", tmp_path / "work"
+    seeds = (0, 1, 2, 3)
+    config = {"delay": 1.0, "counter": str(counter)}
+    script = tmp_path / "sweep.py"
+    script.write_text(FAKE_METHOD_SRC + textwrap.dedent(f"""
+        from baselines import registry
+        from eval.runner import RunnerConfig, run_sweep
+        from eval.sweep import Sweep
+        registry.METHODS["fake_hull"] = FakeHull()
+        sweep = Sweep(methods=("fake_hull",), shapes=("sphere",), seeds={seeds!r},
+                      configs={{"fake_hull": [{config!r}]}}, **{SMALL!r})
+        run_sweep(sweep, RunnerConfig(work={str(work)!r}))
+    """))
+    proc = subprocess.Popen([sys.executable, str(script)], cwd=REPO, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    db = work / "results.sqlite"
+    deadline = time.monotonic() + 60
+    done = 0
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if db.is_file():
+                with Store(db) as store:
+                    done = store.counts().get("done", 0)
+                if done >= 1:
+                    break
+            time.sleep(0.1)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        _, err = proc.communicate()
+    assert 1 <= done < len(seeds), f"the sweep was not caught mid-way (done={done}): {err[-500:]}"
+    with Store(db) as store:
+        before = {r["seed"]: r["status"] for r in store.rows()}
+    finished_before = {s for s, st in before.items() if st == "done"}
+    assert "running" in before.values()
+    calls_before = counter.read_text().split()
+
+    s = run_sweep(Sweep(methods=("fake_hull",), shapes=("sphere",), seeds=seeds,
+                        configs={"fake_hull": [config]}, **SMALL), RunnerConfig(work=str(work)))
+    assert s.skipped == len(finished_before) and s.done == len(seeds) - len(finished_before)
+    with Store(db) as store:
+        assert {r["status"] for r in store.rows()} == {"done"} and len(store.rows()) == len(seeds)
+    calls = counter.read_text().split()
+    for seed in finished_before:  # each finished run was invoked exactly once, before the kill
+        assert calls.count(str(seed)) == 1 == calls_before.count(str(seed))
+    assert sorted(set(calls)) == [str(x) for x in seeds]
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e .[ray])")
+def test_ray_executor_runs_the_same_sweep(fake, tmp_path):
+    import ray
+
+    from eval.runner import RunnerConfig, run_sweep
+
+    try:
+        s = run_sweep(small_sweep(methods=("fake_hull", "fake_fail")),
+                      RunnerConfig(work=str(tmp_path / "work"), executor="ray"))
+    finally:
+        ray.shutdown()
+    assert (s.done, s.failed) == (1, 1)
+    with Store(tmp_path / "work" / "results.sqlite") as store:
+        assert {r["method"]: r["status"] for r in store.rows()} == {"fake_hull": "done", "fake_fail": "failed"}
+
+
+def test_ray_missing_is_one_clear_error(fake, tmp_path, monkeypatch):
+    from eval.runner import RunnerConfig, run_sweep
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    with pytest.raises(ValueError, match=r"pip install -e \.\[ray\]"):
+        run_sweep(small_sweep(), RunnerConfig(work=str(tmp_path / "work"), executor="ray"))
+    assert not (tmp_path / "work").exists()
+
+
+def test_bench_cli_end_to_end_in_process(fake, tmp_path, capsys):
+    from eval.cli import main
+
+    work, rep = tmp_path / "work", tmp_path / "rep"
+    args = ["-q", "bench", "--methods", "fake_hull", "fake_fail", "--shapes", "sphere", "disc", "--work", str(work),
+            "--set", "n_points=1500", "--set", "metric_samples=1500", "--report", str(rep)]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "fake_hull" in out and "4 runs: 2 done now, 2 failed now" in out
+    assert (rep / "index.html").is_file() and (rep / "table2_pointcloud.csv").is_file()
+    assert main(args) == 0
+    assert "0 done now, 0 failed now, 4 already stored" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------------------------------- bad input
+
+def run_cli(*args, cwd=REPO):
+    return subprocess.run([sys.executable, "-m", "eval.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+def _one_line_exit_2(r):
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().count("\n") == 0, r.stderr
+
+
+def _main_one_line_exit_2(capsys, *args) -> str:
+    """Runs the CLI in-process (fast); checks exit status 2 and a one-line error; returns it."""
+    from eval.cli import main
+
+    code = main(list(args))
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert err.count("\n") == 0 and err.startswith("dmesh "), err
+    return err
+
+
+def test_bench_unknown_method_or_shape_is_one_line_error(tmp_path, capsys):
+    pytest.importorskip("baselines.registry")
+    work = tmp_path / "work"
+    r = run_cli("bench", "--methods", "no_such_method", "--shapes", "sphere", "--work", str(work))
+    _one_line_exit_2(r)
+    assert "unknown method 'no_such_method'" in r.stderr
+    err = _main_one_line_exit_2(capsys, "bench", "--methods", "psr", "--shapes", "no_such_shape", "--work", str(work))
+    assert "unknown shape 'no_such_shape'" in err
+    err = _main_one_line_exit_2(capsys, "bench", "--methods", "psr", "--shapes", "sphere", "--work", str(work),
+                                "--set", "psr.no_such_key=1")
+    assert "unknown config keys ['no_such_key']" in err
+    _main_one_line_exit_2(capsys, "bench", str(tmp_path / "missing.yaml"), "--work", str(work))
+    assert not work.exists()
+
+
+def test_compare_unreadable_mesh_is_one_line_error(tmp_path, capsys):
+    pytest.importorskip("datasets.meshes")
+    bad = tmp_path / "bad.obj"
+    bad.write_text("this is not a mesh\n")
+    out = tmp_path / "cmp"
+    r = run_cli("compare", str(bad), "--methods", "psr", "-o", str(out))
+    _one_line_exit_2(r)
+    assert "bad.obj" in r.stderr
+    err = _main_one_line_exit_2(capsys, "compare", str(tmp_path / "missing.ply"), "--methods", "psr", "-o", str(out))
+    assert "missing.ply" in err
+    err = _main_one_line_exit_2(capsys, "compare", str(bad), "--methods", "no_such_method", "-o", str(out))
+    assert "unknown method" in err
+    assert not out.exists()
