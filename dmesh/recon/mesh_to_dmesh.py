@@ -273,10 +273,25 @@ def _coincides(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> np.ndarray:
 
 
 def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iters: int = 20) -> np.ndarray:
-    """(k, 3) Lloyd k-means centroids started from k random samples (seeded; "++" init is 10x slower)."""
-    from scipy.cluster.vq import kmeans2
+    """(k, 3) Lloyd k-means centroids started from k random samples (seeded).
 
-    return kmeans2(x, k, iter=iters, minit="points", seed=rng)[0]
+    Hand-written because SciPy's kmeans2 assigns by brute force (O(n k) per iteration: 100 s for the
+    dragon's 75K samples and 7.5K clusters); here a KD-tree over the centroids assigns in O(n log k).
+    """
+    from scipy.spatial import cKDTree
+
+    c = x[rng.choice(len(x), k, replace=False)].copy()
+    for _ in range(iters):
+        _, label = cKDTree(c).query(x)
+        count = np.bincount(label, minlength=k)
+        sums = np.stack([np.bincount(label, weights=x[:, d], minlength=k) for d in range(3)], axis=1)
+        moved = count > 0
+        new = c.copy()
+        new[moved] = sums[moved] / count[moved, None]
+        if np.allclose(new, c):
+            break
+        c = new
+    return c
 
 
 def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
