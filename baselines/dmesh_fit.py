@@ -2,7 +2,8 @@
 
 Input kind "mesh": `inputs.mesh` is the normalised GT mesh (max vertex norm 0.8). The output mesh keeps
 the GT vertices first, in order, followed by the inserted points, so the harness can compute RE / FP
-(`info["re_fp_vertices"]`).
+(`info["re_fp_vertices"]`). The state reported is the one with the highest RE - FP reached during the run
+(upstream likewise keeps its best checkpoints); the final state's figures are in `info`.
 """
 from __future__ import annotations
 
@@ -33,9 +34,11 @@ class DMeshFromMesh(Method):
         cfg = dataclasses.replace(cfg, seed=inputs.seed)
         with sw.stage("optimise"):
             r = mesh_to_dmesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), cfg)
-        out = trimesh.Trimesh(r.points, r.faces, process=False)
-        info = {"re_fp_vertices": int(len(mesh.vertices)), "steps": r.steps, "RE_internal": r.re,
-                "FP_internal": r.fp, "best_RE": r.best_re.re, "best_FP": r.best_fp.fp,
+        b = r.best
+        out = trimesh.Trimesh(b.points, b.faces, process=False)
+        info = {"re_fp_vertices": int(len(mesh.vertices)), "steps": r.steps, "best_step": b.step,
+                "RE_internal": b.re, "FP_internal": b.fp, "final_RE": r.re, "final_FP": r.fp,
+                "best_RE": r.best_re.re, "best_FP": r.best_fp.fp,
                 "stopped_early": r.stopped_early, "points": len(r.points),
                 "stage_seconds": r.timings}
         return out, info

@@ -45,6 +45,7 @@ def fit_mesh(path: str, preset: str = "fast", steps: int | None = None, seed: in
 
 
 def run(args) -> int:
+    import numpy as np
     import torch
     import trimesh
 
@@ -65,15 +66,19 @@ def run(args) -> int:
     finally:
         bar.close()
     r = fitted["result"]
+    b = r.best  # the state with the highest RE - FP (the final state's figures are reported too)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        state = dmesh.DMesh(r.points, r.weights, r.reals, dtype=torch.float64)
+        g = len(fitted["mesh"].vertices)
+        reals = np.r_[np.ones(g), np.zeros(len(b.points) - g)]  # GT vertices real, inserted points not
+        state = dmesh.DMesh(b.points, b.weights, reals, dtype=torch.float64)
         state.save(tmp / "dmesh.npz")
-        trimesh.Trimesh(r.points, r.faces, process=False).export(tmp / "mesh.ply")
+        trimesh.Trimesh(b.points, b.faces, process=False).export(tmp / "mesh.ply")
         summary = {
             "mesh": str(args.mesh), "shape": Path(args.mesh).stem, "preset": args.preset, "seed": args.seed,
-            "RE": 100 * r.re, "FP": 100 * r.fp, "best_RE": 100 * r.best_re.re, "best_RE_FP": 100 * r.best_re.fp,
+            "RE": 100 * b.re, "FP": 100 * b.fp, "state_step": b.step, "final_RE": 100 * r.re,
+            "final_FP": 100 * r.fp, "best_RE": 100 * r.best_re.re, "best_RE_FP": 100 * r.best_re.fp,
             "best_FP": 100 * r.best_fp.fp, "best_FP_RE": 100 * r.best_fp.re, "steps": r.steps,
             "stopped_early": r.stopped_early, "time_s": fitted["time_s"], "peak_rss_mb": fitted["peak_rss_mb"],
             "points": len(r.points), "gt_vertices": len(fitted["mesh"].vertices),
@@ -87,6 +92,6 @@ def run(args) -> int:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    print(f"RE {summary['RE']:.2f}%  FP {summary['FP']:.2f}%  steps {r.steps}  time {fitted['time_s']:.1f} s  "
-          f"-> {out}")
+    print(f"RE {summary['RE']:.2f}%  FP {summary['FP']:.2f}% (state of step {b.step})  steps {r.steps}  "
+          f"time {fitted['time_s']:.1f} s  -> {out}")
     return 0
