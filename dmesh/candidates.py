@@ -48,7 +48,7 @@ class CandidateFaces:
 
     def add(self, faces: np.ndarray) -> None:
         """Adds faces (F, 3) ints (any vertex order; duplicates and degenerate triples are dropped)."""
-        f = np.sort(np.asarray(faces, dtype=np.int64).reshape(-1, 3), axis=1)
+        f = sort_triples(np.asarray(faces, dtype=np.int64).reshape(-1, 3))
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2])]
         if len(f) == 0:
             return
@@ -81,6 +81,14 @@ class CandidateFaces:
         return len(self.keys)
 
 
+def sort_triples(f: np.ndarray) -> np.ndarray:
+    """(M, 3) rows sorted ascending; min/max arithmetic, several times faster than np.sort(axis=1)."""
+    a, b, c = f[:, 0], f[:, 1], f[:, 2]
+    lo = np.minimum(np.minimum(a, b), c)
+    hi = np.maximum(np.maximum(a, b), c)
+    return np.stack([lo, a + b + c - lo - hi, hi], axis=1)
+
+
 def knn_triples(points: np.ndarray, reals: np.ndarray | None, candidates: np.ndarray | None = None,
                 k: int = 8, thresholds=(0.0, 0.2, 0.4, 0.6, 0.8)) -> np.ndarray:
     """Faces joining each point to every pair of its k nearest neighbours.
@@ -100,11 +108,13 @@ def knn_triples(points: np.ndarray, reals: np.ndarray | None, candidates: np.nda
     eligible = np.ones(len(points), bool) if candidates is None else np.asarray(candidates, bool)
     passes = [eligible] if reals is None else [eligible & (np.asarray(reals) > t) for t in thresholds]
     out = []
+    seen = []  # passes with the same point set give the same triples (e.g. binary real values)
     pairs = np.array([(a, b) for a in range(k) for b in range(a + 1, k)], dtype=np.int64)
     for mask in passes:
         ids = np.flatnonzero(mask)
-        if len(ids) < 3:
+        if len(ids) < 3 or any(np.array_equal(ids, other) for other in seen):
             continue
+        seen.append(ids)
         kk = min(k, len(ids) - 1)
         _, nn = cKDTree(points[ids]).query(points[ids], kk + 1)
         nn = ids[nn[:, 1:]]                                                  # drop self
@@ -114,4 +124,4 @@ def knn_triples(points: np.ndarray, reals: np.ndarray | None, candidates: np.nda
         out.append(tri)
     if not out:
         return np.zeros((0, 3), np.int64)
-    return np.sort(np.concatenate(out), axis=1)
+    return sort_triples(np.concatenate(out).astype(np.int64))
