@@ -129,3 +129,80 @@ def merge_csr(off_a, idx_a, off_b, idx_b):
     """Row-wise sorted union of two CSR lists: (offsets, indices) int32."""
     i32 = lambda a: np.ascontiguousarray(a, dtype=INDEX_DTYPE)  # noqa: E731
     return _native.merge_csr(i32(off_a), i32(idx_a), i32(off_b), i32(idx_b))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Renderers (dmesh/render.py). Letters: N vertices, F faces, T tets, H x W pixels, K fragments.
+# ----------------------------------------------------------------------------------------------------------
+
+def _f32(a) -> np.ndarray:
+    if hasattr(a, "detach"):
+        a = a.detach().cpu().numpy()
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _i32(a) -> np.ndarray:
+    if hasattr(a, "detach"):
+        a = a.detach().cpu().numpy()
+    return np.ascontiguousarray(a, dtype=INDEX_DTYPE)
+
+
+class RawSoftRender(NamedTuple):
+    diffuse: np.ndarray    # (H, W) float32
+    depth: np.ndarray      # (H, W) float32
+    alpha: np.ndarray      # (H, W) float32
+    frag_face: np.ndarray  # (K,) int32
+    pix_range: np.ndarray  # (H, W, 2) int32
+    stats: dict            # num_drawn, num_bins, num_fragments
+
+
+def soft_render_forward(verts, faces, opacity, world_to_camera, fov_y: float, height: int, width: int,
+                        near: float, edge_width: float, min_opacity: float, t_min: float,
+                        num_threads: int) -> RawSoftRender:
+    """Soft tile rasteriser forward (native/src/soft_render.h); fov_y in radians."""
+    return RawSoftRender(*_native.soft_render_forward(
+        _f32(verts), _i32(faces), _f32(opacity),
+        np.ascontiguousarray(world_to_camera, dtype=np.float64), float(fov_y), int(height), int(width),
+        float(near), float(edge_width), float(min_opacity), float(t_min), int(num_threads)))
+
+
+def soft_render_backward(verts, faces, opacity, world_to_camera, fov_y: float, height: int, width: int,
+                         near: float, edge_width: float, min_opacity: float, t_min: float, num_threads: int,
+                         frag_face, pix_range, grad_diffuse, grad_depth, grad_alpha):
+    """((N, 3) float32 vertex gradient, (F,) float32 opacity gradient) for the forward's fragments."""
+    return _native.soft_render_backward(
+        _f32(verts), _i32(faces), _f32(opacity),
+        np.ascontiguousarray(world_to_camera, dtype=np.float64), float(fov_y), int(height), int(width),
+        float(near), float(edge_width), float(min_opacity), float(t_min), int(num_threads), _i32(frag_face),
+        _i32(pix_range), _f32(grad_diffuse), _f32(grad_depth),
+        _f32(grad_alpha))
+
+
+class RawTetRender(NamedTuple):
+    diffuse: np.ndarray       # (H, W) float32
+    depth: np.ndarray         # (H, W) float32
+    alpha: np.ndarray         # (H, W) float32
+    frag_face: np.ndarray     # (K,) int32
+    frag_diffuse: np.ndarray  # (K,) float32
+    frag_depth: np.ndarray    # (K,) float32
+    pix_range: np.ndarray     # (H, W, 2) int32
+    stats: dict               # num_steps, num_fragments
+
+
+def tet_render_forward(verts, tets, faces, face_tets, opacity, world_to_camera, fov_y: float, height: int,
+                       width: int, near: float, min_opacity: float, t_min: float,
+                       num_threads: int) -> RawTetRender:
+    """Tetrahedral walk renderer forward (native/src/tet_render.h); fov_y in radians."""
+    return RawTetRender(*_native.tet_render_forward(
+        _f32(verts), _i32(tets), _i32(faces), _i32(face_tets), _f32(opacity),
+        np.ascontiguousarray(world_to_camera, dtype=np.float64), float(fov_y), int(height), int(width),
+        float(near), float(min_opacity), float(t_min), int(num_threads)))
+
+
+def tet_render_backward(opacity, frag_face, frag_diffuse, frag_depth, pix_range, grad_diffuse, grad_depth,
+                        grad_alpha, num_threads: int) -> np.ndarray:
+    """(F,) float32 opacity gradient for the forward's fragments."""
+    return _native.tet_render_backward(
+        _f32(opacity), _i32(frag_face), _f32(frag_diffuse),
+        _f32(frag_depth), _i32(pix_range), _f32(grad_diffuse),
+        _f32(grad_depth), _f32(grad_alpha), int(num_threads))

@@ -2,6 +2,7 @@
 #include "soft_render.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -64,7 +65,7 @@ inline void cross3(const double a[3], const double b[3], double out[3]) {
 inline double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 // Everything about one drawn face that the per-pixel loops need.
-struct alignas(64) Face {
+struct alignas(32) Face {
   // hot: read by every coverage test
   double ea[3], eb[3], ec[3];  // normalised edge lines: sd_e = ea u + eb v + ec, >= 0 on the inner side
   double area2;     // signed doubled screen area
@@ -78,14 +79,14 @@ struct alignas(64) Face {
   index_t id;       // input face index
   int imin, imax;   // corners with the smallest / largest depth
   index_t x0, x1, y0, y1;  // pixel bounding box (inclusive), band included
-  // cold: backward only
-  double P[3][3];   // camera-space corners
 };
+
+using Corners = std::array<double, 9>;  // camera-space corners P0, P1, P2 (backward only)
 
 struct BinEntry {  // what a tile keeps per listed face (16 bytes)
   std::int16_t x0, x1, y0, y1;
   float zmin;       // rounded down: a lower bound of the face's zmin
-  index_t slot;     // index into Prepared::faces
+  index_t slot;     // face id: index into Prepared::faces
 };
 
 struct RowEntry {  // a tile's faces whose box spans one pixel row
@@ -95,21 +96,25 @@ struct RowEntry {  // a tile's faces whose box spans one pixel row
 };
 
 // Fills Face from the corners; returns false when the face is culled.
-bool setup_face(const View& view, const float* verts, const index_t* tri, double opacity, double w, Face& fc) {
+bool setup_face(const View& view, const float* verts, const index_t* tri, double opacity, double w, Face& fc,
+                Corners* corners = nullptr) {
   fc.id = kNone;
+  struct {
+    double P[3][3];
+  } fcP;
   for (int i = 0; i < 3; ++i) {
     const float* x = verts + 3 * std::int64_t(tri[i]);
     if (!std::isfinite(x[0]) || !std::isfinite(x[1]) || !std::isfinite(x[2])) return false;
-    view.to_camera(x, fc.P[i]);
-    const double depth = -fc.P[i][2];
+    view.to_camera(x, fcP.P[i]);
+    const double depth = -fcP.P[i][2];
     if (!(depth >= view.near)) return false;
-    fc.q[i][0] = view.cx + view.f * fc.P[i][0] / depth;
-    fc.q[i][1] = view.cy - view.f * fc.P[i][1] / depth;
+    fc.q[i][0] = view.cx + view.f * fcP.P[i][0] / depth;
+    fc.q[i][1] = view.cy - view.f * fcP.P[i][1] / depth;
   }
   double e1[3], e2[3];
   for (int k = 0; k < 3; ++k) {
-    e1[k] = fc.P[1][k] - fc.P[0][k];
-    e2[k] = fc.P[2][k] - fc.P[0][k];
+    e1[k] = fcP.P[1][k] - fcP.P[0][k];
+    e2[k] = fcP.P[2][k] - fcP.P[0][k];
   }
   cross3(e1, e2, fc.n);
   fc.nlen = std::sqrt(dot3(fc.n, fc.n));
@@ -118,14 +123,17 @@ bool setup_face(const View& view, const float* verts, const index_t* tri, double
     fc.n[0] = fc.n[1] = fc.n[2] = 0.0;
     fc.nlen = 0.0;
   }
-  fc.num = dot3(fc.n, fc.P[0]);
+  fc.num = dot3(fc.n, fcP.P[0]);
   fc.imin = fc.imax = 0;
   for (int i = 1; i < 3; ++i) {
-    if (-fc.P[i][2] < -fc.P[fc.imin][2]) fc.imin = i;
-    if (-fc.P[i][2] > -fc.P[fc.imax][2]) fc.imax = i;
+    if (-fcP.P[i][2] < -fcP.P[fc.imin][2]) fc.imin = i;
+    if (-fcP.P[i][2] > -fcP.P[fc.imax][2]) fc.imax = i;
   }
-  fc.zmin = -fc.P[fc.imin][2];
-  fc.zmax = -fc.P[fc.imax][2];
+  fc.zmin = -fcP.P[fc.imin][2];
+  fc.zmax = -fcP.P[fc.imax][2];
+  if (corners)
+    for (int i = 0; i < 3; ++i)
+      for (int k = 0; k < 3; ++k) (*corners)[3 * i + k] = fcP.P[i][k];
   fc.area2 = (fc.q[1][0] - fc.q[0][0]) * (fc.q[2][1] - fc.q[0][1]) -
              (fc.q[2][0] - fc.q[0][0]) * (fc.q[1][1] - fc.q[0][1]);
   const double sgn = fc.area2 >= 0 ? 1.0 : -1.0;
@@ -242,16 +250,37 @@ inline double frag_diffuse(const Face& fc, const double d[3]) {
 }
 
 struct Frag {
-  double key;  // sort depth: z inside the triangle, the face's zmax in the soft band
+  double key;  // sort depth: z inside the triangle, z + (zmax - zmin) in the soft band
   double z;
   index_t face;
-  double a, c;
+  double a;
+  const struct Face* fc;  // diffuse is evaluated only when the fragment is composited
 };
 
+// Large per-call arrays are kept per calling thread and reused: fresh allocations of tens of MB come
+// from new pages each call, and the page faults cost as much as the setup itself. (Memory held: the
+// largest call's face and bin arrays, about 250 bytes per face.)
+template <class T>
+struct Reusable {
+  std::unique_ptr<T[]> data;
+  size_t cap = 0;
+  T* get(size_t n) {
+    if (n > cap) {
+      data.reset(new T[n]);  // not zero-filled
+      cap = n;
+    }
+    return data.get();
+  }
+};
+thread_local Reusable<Face> tl_faces, tl_bwd_faces;
+thread_local Reusable<BinEntry> tl_bins, tl_box;
+thread_local Reusable<Corners> tl_corners;
+thread_local Reusable<double> tl_acc, tl_gv;
+
 struct Prepared {
-  std::unique_ptr<Face[]> faces;    // candidate faces sorted by (zmin, id): index = slot
+  Face* faces = nullptr;            // (F,) by face id, valid where drawn
   std::vector<std::int64_t> tile_start;  // (tiles + 1,)
-  std::unique_ptr<BinEntry[]> bins;  // per tile, in slot order (so sorted by zmin)
+  BinEntry* bins = nullptr;         // per tile, sorted by (zmin, face id)
   std::int64_t num_drawn = 0, num_bins = 0;
   index_t tiles_x = 0, tiles_y = 0;
 };
@@ -285,26 +314,29 @@ void validate(const index_t* faces, index_t F, index_t N, const float* opacity, 
 Prepared prepare(const View& view, const float* verts, const index_t* faces, index_t F, const float* opacity,
                  const SoftRenderSettings& s, int threads) {
   Prepared p;
-  // 1. depth range of every candidate face (cheap), 2. order by (zmin, id), 3. full setup in that order,
-  // straight into the slot array (so a tile's faces lie in memory in the order its pixels read them).
+  // 1. full setup in input order (sequential reads and writes, stored by face id), 2. order the drawn
+  // faces by (zmin, id), 3. bin them in that order, so that every tile's list is sorted.
+  p.faces = tl_faces.get(size_t(std::max<index_t>(F, 1)));
+  BinEntry* box = tl_box.get(size_t(std::max<index_t>(F, 1)));  // compact copy of each face's bin entry
   std::vector<std::pair<double, index_t>> order(static_cast<size_t>(F));
   const std::int64_t chunk = 8192;
   parallel_for((std::int64_t(F) + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
     const std::int64_t end = std::min<std::int64_t>(F, (c + 1) * chunk);
-    for (std::int64_t k = c * chunk; k < end; ++k) {
-      double zmin = std::numeric_limits<double>::infinity();
-      bool ok = double(opacity[k]) > s.min_opacity;
-      for (int i = 0; i < 3 && ok; ++i) {
-        const float* x = verts + 3 * std::int64_t(faces[3 * k + i]);
-        double pc[3];
-        view.to_camera(x, pc);
-        ok = std::isfinite(pc[0]) && std::isfinite(pc[1]) && -pc[2] >= view.near;
-        zmin = std::min(zmin, -pc[2]);
-      }
-      order[k] = {ok ? zmin : std::numeric_limits<double>::infinity(), ok ? index_t(k) : kNone};
+    for (std::int64_t f = c * chunk; f < end; ++f) {
+      order[f] = {std::numeric_limits<double>::infinity(), kNone};
+      if (!(double(opacity[f]) > s.min_opacity)) continue;
+      Face& fc = p.faces[f];
+      if (!setup_face(view, verts, faces + 3 * f, double(opacity[f]), s.edge_width, fc)) continue;
+      fc.id = index_t(f);
+      float zlo = float(fc.zmin);
+      if (double(zlo) > fc.zmin) zlo = std::nextafter(zlo, -std::numeric_limits<float>::infinity());
+      box[f] = BinEntry{std::int16_t(fc.x0), std::int16_t(fc.x1), std::int16_t(fc.y0), std::int16_t(fc.y1), zlo,
+                        index_t(f)};
+      order[f] = {fc.zmin, index_t(f)};
     }
   });
-  order.erase(std::remove_if(order.begin(), order.end(), [](const std::pair<double, index_t>& a) { return a.second == kNone; }),
+  order.erase(std::remove_if(order.begin(), order.end(),
+                             [](const std::pair<double, index_t>& a) { return a.second == kNone; }),
               order.end());
   if (threads > 1 && order.size() > 65536) {  // two halves in parallel, then merge
     const auto mid = order.begin() + order.size() / 2;
@@ -314,47 +346,27 @@ Prepared prepare(const View& view, const float* verts, const index_t* faces, ind
     std::sort(order.begin(), order.end());
   }
   const std::int64_t D = std::int64_t(order.size());
-  p.faces.reset(new Face[size_t(std::max<std::int64_t>(D, 1))]);  // not zero-filled
-  std::vector<std::uint8_t> ok(static_cast<size_t>(std::max<std::int64_t>(D, 1)), 0);
-  // set up in input order (vertex reads follow the input, which is usually coherent), writing each face
-  // to its slot
-  std::vector<index_t> slot_of(static_cast<size_t>(F), kNone);
-  for (std::int64_t k = 0; k < D; ++k) slot_of[order[k].second] = index_t(k);
-  parallel_for((std::int64_t(F) + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
-    const std::int64_t end = std::min<std::int64_t>(F, (c + 1) * chunk);
-    for (std::int64_t f = c * chunk; f < end; ++f) {
-      const index_t k = slot_of[f];
-      if (k == kNone) continue;
-      ok[k] = setup_face(view, verts, faces + 3 * f, double(opacity[f]), s.edge_width, p.faces[k]);
-      p.faces[k].id = index_t(f);
-    }
-  });
 
   p.tiles_x = (view.W + kTile - 1) / kTile;
   p.tiles_y = (view.H + kTile - 1) / kTile;
   const std::int64_t tiles = std::int64_t(p.tiles_x) * p.tiles_y;
   std::vector<std::int64_t> count(static_cast<size_t>(tiles) + 1, 0);
+  p.num_drawn = D;
   for (std::int64_t k = 0; k < D; ++k) {
-    if (!ok[k]) continue;
-    ++p.num_drawn;
-    const Face& fc = p.faces[k];
-    for (index_t ty = fc.y0 / kTile; ty <= fc.y1 / kTile; ++ty)
-      for (index_t tx = fc.x0 / kTile; tx <= fc.x1 / kTile; ++tx) ++count[std::int64_t(ty) * p.tiles_x + tx];
+    const index_t f = order[k].second;
+    const BinEntry& b = box[f];
+    for (index_t ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
+      for (index_t tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx) ++count[std::int64_t(ty) * p.tiles_x + tx];
   }
   p.tile_start.assign(size_t(tiles) + 1, 0);
   for (std::int64_t t = 0; t < tiles; ++t) p.tile_start[t + 1] = p.tile_start[t] + count[t];
-  p.bins.reset(new BinEntry[size_t(std::max<std::int64_t>(p.tile_start[tiles], 1))]);
+  p.bins = tl_bins.get(size_t(std::max<std::int64_t>(p.tile_start[tiles], 1)));
   p.num_bins = p.tile_start[tiles];
   std::vector<std::int64_t> fill(p.tile_start.begin(), p.tile_start.end() - 1);
-  for (std::int64_t slot = 0; slot < D; ++slot) {
-    if (!ok[slot]) continue;
-    const Face& fc = p.faces[slot];
-    float zlo = float(fc.zmin);
-    if (double(zlo) > fc.zmin) zlo = std::nextafter(zlo, -std::numeric_limits<float>::infinity());
-    const BinEntry b{std::int16_t(fc.x0), std::int16_t(fc.x1), std::int16_t(fc.y0), std::int16_t(fc.y1), zlo,
-                     index_t(slot)};
-    for (index_t ty = fc.y0 / kTile; ty <= fc.y1 / kTile; ++ty)
-      for (index_t tx = fc.x0 / kTile; tx <= fc.x1 / kTile; ++tx) p.bins[fill[std::int64_t(ty) * p.tiles_x + tx]++] = b;
+  for (std::int64_t k = 0; k < D; ++k) {  // in (zmin, id) order, so every tile's list is sorted
+    const BinEntry b = box[order[k].second];
+    for (index_t ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
+      for (index_t tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx) p.bins[fill[std::int64_t(ty) * p.tiles_x + tx]++] = b;
   }
   return p;
 }
@@ -388,14 +400,16 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
 
   parallel_for(tiles, threads, [&](std::int64_t t, int) {
     const index_t tx = index_t(t % p.tiles_x), ty = index_t(t / p.tiles_x);
-    const BinEntry* list = p.bins.get() + p.tile_start[t];
+    const BinEntry* list = p.bins + p.tile_start[t];
     const std::int64_t len = p.tile_start[t + 1] - p.tile_start[t];
     std::vector<index_t>& out = tile_frags[size_t(t)];
     if (len == 0) return;
     std::vector<Frag> heap;
     heap.reserve(64);
-    // bucket the tile's list by pixel row (each row keeps the slot order)
+    // bucket the tile's list by pixel row (each row keeps the slot order), narrowing each face's span in
+    // the row to the pixels where all three edge distances exceed -w (a necessary condition for cov > 0)
     const index_t i0 = ty * kTile, i1 = std::min<index_t>(H, (ty + 1) * kTile);
+    const index_t j0 = tx * kTile, j1 = std::min<index_t>(W, (tx + 1) * kTile) - 1;
     std::int64_t row_start[kTile + 1] = {0};
     for (std::int64_t k = 0; k < len; ++k) {
       const index_t a = std::max<index_t>(list[k].y0, i0), b = std::min<index_t>(list[k].y1, i1 - 1);
@@ -407,13 +421,33 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
     std::copy(row_start, row_start + kTile, row_fill);
     for (std::int64_t k = 0; k < len; ++k) {
       const BinEntry& e = list[k];
+      const Face& fc = p.faces[e.slot];
       const index_t a = std::max<index_t>(e.y0, i0), b = std::min<index_t>(e.y1, i1 - 1);
-      for (index_t i = a; i <= b; ++i) rows[size_t(row_fill[i - i0]++)] = RowEntry{e.x0, e.x1, e.zmin, e.slot};
+      const double xl = std::max<double>(e.x0, j0), xh = std::min<double>(e.x1, j1);
+      for (index_t i = a; i <= b; ++i) {
+        const double v = i + 0.5;
+        double lo = xl, hi = xh;  // in pixel-index units: centre u = j + 0.5
+        bool empty = false;
+        for (int q = 0; q < 3; ++q) {
+          const double c = fc.eb[q] * v + fc.ec[q] + w + fc.ea[q] * 0.5;  // sd_q + w at pixel index j: ea j + c
+          if (fc.ea[q] > 0) {
+            lo = std::max(lo, -c / fc.ea[q]);
+          } else if (fc.ea[q] < 0) {
+            hi = std::min(hi, -c / fc.ea[q]);
+          } else if (!(c > 0)) {
+            empty = true;
+          }
+        }
+        if (empty || !(lo <= hi + 1.0)) continue;
+        const index_t ja = index_t(std::max(xl, std::floor(lo))), jb = index_t(std::min(xh, std::ceil(hi)));
+        if (ja > jb) continue;
+        rows[size_t(row_fill[i - i0]++)] = RowEntry{std::int16_t(ja), std::int16_t(jb), e.zmin, e.slot};
+      }
     }
     std::int64_t scanned = 0, tested = 0;
     for (index_t i = i0; i < i1; ++i) {
       const RowEntry* row = rows.data() + row_start[i - i0];
-      const std::int64_t rlen = row_start[i - i0 + 1] - row_start[i - i0];
+      const std::int64_t rlen = row_fill[i - i0] - row_start[i - i0];
       for (index_t j = tx * kTile; j < std::min<index_t>(W, (tx + 1) * kTile); ++j) {
         const double u = j + 0.5, v = i + 0.5;
         double d[3];
@@ -429,7 +463,7 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
               return;
             }
             const Frag& fr = heap.back();
-            C += fr.c * fr.a * T;
+            C += frag_diffuse(*fr.fc, d) * fr.a * T;
             Z += fr.z * fr.a * T;
             T *= 1.0 - fr.a;
             out.push_back(fr.face);
@@ -452,7 +486,7 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
           double den;
           int which;
           const double z = frag_depth(fc, d, &den, &which);
-          Frag fr{cov < 1.0 ? z + (fc.zmax - fc.zmin) : z, z, fc.id, fc.opacity * cov, frag_diffuse(fc, d)};
+          Frag fr{cov < 1.0 ? z + (fc.zmax - fc.zmin) : z, z, fc.id, fc.opacity * cov, &fc};
           heap.insert(std::upper_bound(heap.begin(), heap.end(), fr, farther), fr);
         }
         if (!done) composite_until(std::numeric_limits<double>::infinity());
@@ -476,7 +510,8 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
     throw std::invalid_argument(std::string(fn) + ": too many fragments for int32 offsets");
   }
   r.frag_face.resize(size_t(base[tiles]));
-  for (std::int64_t t = 0; t < tiles; ++t) std::copy(tile_frags[t].begin(), tile_frags[t].end(), r.frag_face.begin() + base[t]);
+  for (std::int64_t t = 0; t < tiles; ++t)
+    std::copy(tile_frags[t].begin(), tile_frags[t].end(), r.frag_face.begin() + base[t]);
   for (index_t i = 0; i < H; ++i)
     for (index_t j = 0; j < W; ++j) {
       const std::int64_t t = std::int64_t(i / kTile) * p.tiles_x + j / kTile;
@@ -522,7 +557,8 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
     frag_slot[k] = sl;
   }
   const std::int64_t S_ = std::int64_t(face_of.size());
-  std::unique_ptr<Face[]> fdata(new Face[size_t(std::max<std::int64_t>(S_, 1))]);  // not zero-filled
+  Face* fdata = tl_bwd_faces.get(size_t(std::max<std::int64_t>(S_, 1)));
+  Corners* corners = tl_corners.get(size_t(std::max<std::int64_t>(S_, 1)));
   std::vector<std::uint8_t> bad(static_cast<size_t>(std::max<std::int64_t>(S_, 1)), 0);
   const std::int64_t chunk = 4096;
   parallel_for((S_ + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
@@ -530,7 +566,8 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
     for (std::int64_t k = c * chunk; k < end; ++k) {
       const index_t f = face_of[k];
       bad[k] = double(opacity[f]) <= s.min_opacity ||
-               !setup_face(view, verts, faces + 3 * std::int64_t(f), double(opacity[f]), s.edge_width, fdata[k]);
+               !setup_face(view, verts, faces + 3 * std::int64_t(f), double(opacity[f]), s.edge_width, fdata[k],
+                          &corners[k]);
     }
   });
   for (std::int64_t k = 0; k < S_; ++k) {
@@ -541,15 +578,16 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
   }
 
   const int nthreads = std::max(1, int(std::min<std::int64_t>(threads, H)));
-  std::vector<std::vector<double>> gP(static_cast<size_t>(nthreads)), gO(static_cast<size_t>(nthreads));
+  // per thread and slot: d L / d (P0, P1, P2) in camera space (9) and d L / d opacity (1)
+  double* acc = tl_acc.get(size_t(nthreads) * size_t(S_) * 10 + 1);
+  std::vector<std::uint8_t> used(static_cast<size_t>(nthreads), 0);
   const double w = s.edge_width;
   const std::int64_t rows_per = 4;
   parallel_for((std::int64_t(H) + rows_per - 1) / rows_per, nthreads, [&](std::int64_t rb, int tid) {
-    std::vector<double>& gp = gP[size_t(tid)];
-    std::vector<double>& go = gO[size_t(tid)];
-    if (gp.empty()) {
-      gp.assign(size_t(S_) * 9, 0.0);  // per slot: d L / d (P0, P1, P2), camera space
-      go.assign(size_t(S_), 0.0);
+    double* ga = acc + size_t(tid) * size_t(S_) * 10;
+    if (!used[size_t(tid)]) {
+      std::fill(ga, ga + size_t(S_) * 10, 0.0);
+      used[size_t(tid)] = 1;
     }
     struct Rec {
       double a, T, cov, c, z, den;
@@ -584,21 +622,22 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
         for (index_t k = cnt - 1; k >= 0; --k) {
           const Rec& rc = recs[size_t(k)];
           const Face& fc = fdata[rc.slot];
+          const double(&FP)[3][3] = *reinterpret_cast<const double(*)[3][3]>(corners[rc.slot].data());
           const double val = gD * rc.c + gZ * rc.z + gA;
           const double g_a = rc.T * (val - S);
           S = val * rc.a + (1.0 - rc.a) * S;
           const double w_frag = rc.a * rc.T;
-          go[rc.slot] += g_a * rc.cov;
+          ga[10 * size_t(rc.slot) + 9] += g_a * rc.cov;
           double g[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};  // d L / d P_i (camera space)
           // coverage -> screen corners -> camera-space corners
           const double g_cov = g_a * fc.opacity;
           if (g_cov != 0.0 && rc.cov < 1.0) {
-            double dq[6];
+            double dq[6] = {0, 0, 0, 0, 0, 0};
             coverage(fc, u, v, w, dq);
             for (int c = 0; c < 3; ++c) {
               const double gu = g_cov * dq[2 * c], gv = g_cov * dq[2 * c + 1];
               if (gu == 0.0 && gv == 0.0) continue;
-              const double* Pc = fc.P[c];
+              const double* Pc = FP[c];
               const double z = Pc[2];
               // u = cx - f x / z, v = cy + f y / z
               g[c][0] += gu * (-view.f / z);
@@ -613,9 +652,9 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
               g[rc.which][2] += -g_z;
             } else {
               // z = det(P0, P1, P2) / (n . d)
-              const double* P0 = fc.P[0];
-              const double* P1 = fc.P[1];
-              const double* P2 = fc.P[2];
+              const double* P0 = FP[0];
+              const double* P1 = FP[1];
+              const double* P2 = FP[2];
               double dn[3][3], dd[3][3], diff[3];
               cross3(P1, P2, dn[0]);
               cross3(P2, P0, dn[1]);
@@ -641,8 +680,8 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
             for (int k2 = 0; k2 < 3; ++k2) gn[k2] = g_c * sg * (d[k2] / dl - cosv * fc.n[k2] / fc.nlen) / fc.nlen;
             double e1[3], e2[3], g1[3], g2[3];
             for (int k2 = 0; k2 < 3; ++k2) {
-              e1[k2] = fc.P[1][k2] - fc.P[0][k2];
-              e2[k2] = fc.P[2][k2] - fc.P[0][k2];
+              e1[k2] = FP[1][k2] - FP[0][k2];
+              e2[k2] = FP[2][k2] - FP[0][k2];
             }
             cross3(e2, gn, g1);
             cross3(gn, e1, g2);
@@ -652,7 +691,7 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
               g[0][k2] -= g1[k2] + g2[k2];
             }
           }
-          double* gs = &gp[9 * size_t(rc.slot)];
+          double* gs = ga + 10 * size_t(rc.slot);
           for (int c = 0; c < 3; ++c)
             for (int k2 = 0; k2 < 3; ++k2) gs[3 * c + k2] += g[c][k2];
         }
@@ -661,17 +700,18 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
   });
 
   SoftRenderGrad out;
-  std::vector<double> gv(size_t(N) * 3, 0.0);
+  double* gv = tl_gv.get(size_t(N) * 3 + 1);
+  std::fill(gv, gv + size_t(N) * 3, 0.0);
   out.grad_opacity.assign(size_t(F), 0.0f);
   for (std::int64_t k = 0; k < S_; ++k) {
     const index_t* tri = faces + 3 * std::int64_t(face_of[k]);
     double go_sum = 0.0;
-    for (size_t t = 0; t < gP.size(); ++t) {
-      if (gP[t].empty()) continue;
-      const double* gs = &gP[t][9 * size_t(k)];
+    for (int t = 0; t < nthreads; ++t) {
+      if (!used[size_t(t)]) continue;
+      const double* gs = acc + (size_t(t) * size_t(S_) + size_t(k)) * 10;
       for (int c = 0; c < 3; ++c)
         for (int k2 = 0; k2 < 3; ++k2) gv[3 * size_t(tri[c]) + k2] += gs[3 * c + k2];
-      go_sum += gO[t][size_t(k)];
+      go_sum += gs[9];
     }
     out.grad_opacity[size_t(face_of[k])] = float(go_sum);
   }

@@ -18,16 +18,24 @@
 //             has c = 0 and depth = its zmax
 //   depth     z = the ray-plane depth (-z_cam of the hit on the face's plane) clamped into the face's
 //             [min, max] vertex depth (so fragments outside the triangle stay inside its depth range).
-// Fragments are composited front to back in exact per-pixel depth order (ties by face id):
+// Fragments are composited front to back in per-pixel depth order (exact per pixel; see the sort key below):
 //   C += c a T, Z += z a T, T *= (1 - a), stopping before a fragment when T < t_min (1e-4);
 // outputs diffuse = C, depth = Z (not normalised by alpha: background 0, like the capture's depth),
 // alpha = 1 - T.
 //
-// Exact ordering with early stop: each 16x16 tile holds the faces whose (band-grown) screen bounding box
-// touches it, sorted by their minimum vertex depth zmin. A pixel walks that list in order and keeps the
-// covering fragments in a small priority queue; a fragment is composited once the next face's zmin is
-// not smaller than its depth (no later face can come in front of it). So the pixel stops as soon as
-// T < t_min without visiting the rest of the list.
+// Exact ordering with early stop: faces are sorted once by their minimum vertex depth zmin (ties by id)
+// and binned in that order, so each 16x16 tile's list (the faces whose band-grown screen bounding box
+// touches it) is sorted by zmin; a tile splits its list into per-row lists. A pixel walks its row's list
+// in order and keeps the covering fragments in a small priority queue keyed by depth (band fragments,
+// cov < 1, are keyed one depth extent back, z + zmax - zmin, so that on a closed surface the face that
+// covers the pixel centre is composited before its neighbours' bands); a fragment is composited once
+// the next listed face's zmin is not smaller than its key (no later face can come in front of it). So
+// the pixel stops as soon as T < t_min without visiting the rest of the list. The keys, not the output
+// depths, decide the order; ties go to the smaller face id.
+//
+// Threads: tiles (forward) and rows (backward) are shared among `num_threads` std::threads; each backward
+// thread accumulates into its own buffer. The face and bin arrays (about 250 bytes per face) are kept per
+// calling thread between calls, so repeated calls do not pay the page faults of fresh allocations.
 //
 // Faces with opacity <= min_opacity, with a vertex nearer than `near` to the camera plane, or with a
 // non-finite vertex are not drawn (and get no gradient).

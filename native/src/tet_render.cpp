@@ -52,11 +52,16 @@ TetRenderResult tet_render_forward(const float* verts, index_t N, const index_t*
   const std::string f(fn);
   const View view = make_view(cam, fn);
   if (!(s.t_min > 0.0 && s.t_min < 1.0)) throw std::invalid_argument(f + ": t_min must be in (0, 1)");
-  if (!(s.min_opacity >= 0.0 && s.min_opacity < 1.0)) throw std::invalid_argument(f + ": min_opacity must be in [0, 1)");
+  if (!(s.min_opacity >= 0.0 && s.min_opacity < 1.0))
+    throw std::invalid_argument(f + ": min_opacity must be in [0, 1)");
   for (std::int64_t k = 0; k < 4 * std::int64_t(T); ++k)
-    if (tets[k] < 0 || tets[k] >= N) throw std::invalid_argument(f + ": tets holds " + std::to_string(tets[k]) + ", outside [0, " + std::to_string(N) + ")");
+    if (tets[k] < 0 || tets[k] >= N)
+      throw std::invalid_argument(f + ": tets holds " + std::to_string(tets[k]) + ", outside [0, " +
+                                  std::to_string(N) + ")");
   for (std::int64_t k = 0; k < 3 * std::int64_t(F); ++k)
-    if (faces[k] < 0 || faces[k] >= N) throw std::invalid_argument(f + ": faces holds " + std::to_string(faces[k]) + ", outside [0, " + std::to_string(N) + ")");
+    if (faces[k] < 0 || faces[k] >= N)
+      throw std::invalid_argument(f + ": faces holds " + std::to_string(faces[k]) + ", outside [0, " +
+                                  std::to_string(N) + ")");
   for (index_t k = 0; k < F; ++k) {
     if (!(opacity[k] >= 0.0f && opacity[k] <= 1.0f))
       throw std::invalid_argument(f + ": opacity[" + std::to_string(k) + "] is outside [0, 1]");
@@ -74,7 +79,8 @@ TetRenderResult tet_render_forward(const float* verts, index_t N, const index_t*
     for (int side = 0; side < 2; ++side) {
       const index_t t = face_tets[2 * k + side];
       if (t < 0) continue;
-      if (filled[t] == 4) throw std::invalid_argument(f + ": tet " + std::to_string(t) + " has more than 4 faces in face_tets");
+      if (filled[t] == 4)
+        throw std::invalid_argument(f + ": tet " + std::to_string(t) + " has more than 4 faces in face_tets");
       const index_t* tv = tets + 4 * std::int64_t(t);
       for (int c = 0; c < 3; ++c) {
         const index_t vtx = faces[3 * k + c];
@@ -85,7 +91,9 @@ TetRenderResult tet_render_forward(const float* verts, index_t N, const index_t*
     }
   }
   for (index_t t = 0; t < T; ++t)
-    if (filled[t] != 4) throw std::invalid_argument(f + ": tet " + std::to_string(t) + " has " + std::to_string(int(filled[t])) + " faces in face_tets, expected 4");
+    if (filled[t] != 4)
+      throw std::invalid_argument(f + ": tet " + std::to_string(t) + " has " + std::to_string(int(filled[t])) +
+                                  " faces in face_tets, expected 4");
 
   const int threads = thread_count(s.num_threads);
   std::vector<double> Pc(size_t(N) * 3);
