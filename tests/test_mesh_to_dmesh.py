@@ -39,7 +39,9 @@ def small_sheet():
 @pytest.mark.parametrize("make", [small_torus, small_sheet], ids=["closed-torus", "open-sheet"])
 def test_small_meshes_are_recovered_exactly(make):
     v, f = make()
-    r = mesh_to_dmesh(v, f, fast_config(steps=600, insert_every=200))
+    # No lr decay: these meshes need ~370 steps at full step size (measured: torus 367, sheet 121), and the
+    # fast preset's decay of 0.5 per period, tuned for the bunny's final FP, slows them past the budget.
+    r = mesh_to_dmesh(v, f, fast_config(steps=800, insert_every=200, decay=1.0))
     assert r.stopped_early, f"RE {r.re:.3f} FP {r.fp:.3f} after {r.steps} steps"
     assert r.re == 1.0 and r.fp == 0.0
     # The recovered faces are exactly the GT faces, checked independently of the metric function.

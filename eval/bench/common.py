@@ -49,7 +49,7 @@ def machine_info() -> dict:
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "cpu": cpu, "cores": os.cpu_count(), "threads": torch.get_num_threads(),
         "python": platform.python_version(), "torch": torch.__version__, "numpy": numpy.__version__,
-        "git": git_hash(),
+        "git": git_hash(), "load_average_1min": round(os.getloadavg()[0], 2),
     }
 
 
