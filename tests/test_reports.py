@@ -108,7 +108,10 @@ def test_table1_from_an_re_fp_row(tmp_path):
     assert rows == [{"shape": "bun_zipper_res4_948", "method": "dmesh_mesh", "RE": 0.995, "FP": 0.002,
                      "steps": 2000, "time_s": 12.0, "paper_RE": 0.9978, "paper_FP": 0.0}]
     md, csv_path = tables.write_table1(df, tmp_path / "rep")
-    assert csv_path.read_text().splitlines()[0] == "shape,method,RE,FP,steps,time_s,paper_RE,paper_FP"
+    lines = csv_path.read_text().splitlines()
+    assert lines[0] == "shape,method,RE,FP,steps,time_s,paper_RE,paper_FP"
+    re_, fp = (float(x) for x in lines[1].split(",")[2:4])
+    assert re_ == pytest.approx(99.5) and fp == pytest.approx(0.2)  # percent, as the issue asks
     text = md.read_text()
     assert "| bun_zipper_res4_948 | dmesh_mesh | 99.50 | 0.20 | 2000 | 12.0 | 99.78 | 0.00 |" in text
     assert "| Dragon | 99.72 | 0.55 |" in text

@@ -30,6 +30,9 @@ def add_arguments(p) -> None:
                    help="sweep files (default: eval/sweeps/paper.yaml eval/sweeps/table1.yaml)")
     add_sweep_arguments(p, "runs/paper")
     p.add_argument("--no-renders", action="store_true", help="skip the rendered figures (tables and plots only)")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: regenerate the reports from every run in the store (the latest of each "
+                        "configuration, whatever code version produced it)")
 
 
 def _runnable(sweep, explicit_methods: bool):
@@ -56,6 +59,13 @@ def run(args) -> int:
     from eval.commands.bench import build_sweep, summary_text
     from eval.reports import write_reports
     from eval.runner import RunnerConfig, run_sweep
+
+    if args.report_only:
+        db = Path(args.db) if args.db else RunnerConfig(work=args.work).db_path
+        paths = write_reports(db, args.out, work=Path(args.work), title="DMesh harness: stored runs",
+                              renders=not args.no_renders, keys=None)
+        print(f"wrote {len(paths)} report files from {db}; open {Path(args.out) / 'index.html'}")
+        return 0
 
     # --inputs selects among each sweep's own input kinds (Table 1 keeps its mesh input and frame).
     wanted, args.inputs = args.inputs, None
