@@ -10,16 +10,21 @@ def run_cli(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "eval.cli", *args], capture_output=True, text=True, cwd=cwd)
 
 
-def test_demo_writes_summary_and_mesh(tmp_path):
-    r = run_cli("demo", "-o", str(tmp_path / "out"), "--points", "500")
+def test_demo_writes_table_and_meshes(tmp_path):
+    r = run_cli("-q", "demo", "-o", str(tmp_path / "out"), "--tiny")
     assert r.returncode == 0, r.stderr
-    summary = json.loads((tmp_path / "out" / "demo_summary.json").read_text())
-    assert summary["tets"] > 0 and summary["faces_on_real_points"] > 0
+    out = tmp_path / "out"
+    summary = json.loads((out / "demo_summary.json").read_text())
+    assert set(summary["metrics"]) == {"dmesh", "psr"} and summary["class"] == "mixed"
+    assert summary["metrics"]["dmesh"]["faces"] > 0 and summary["metrics"]["psr"]["faces"] > 0
+    table = (out / "demo_table.md").read_text()
+    assert "| dmesh |" in table and "| psr |" in table
     import trimesh
 
-    mesh = trimesh.load(tmp_path / "out" / "demo_wdt_faces.ply", process=False)
-    assert len(mesh.faces) == summary["faces_on_real_points"]
-    assert not list((tmp_path / "out").glob("*.tmp"))
+    mesh = trimesh.load(out / "dmesh.obj", process=False)
+    assert len(mesh.faces) == summary["metrics"]["dmesh"]["faces"]
+    assert (out / "demo_renders.png").exists() or summary["renders_skipped"]
+    assert not list(out.glob(".*tmp*"))
 
 
 def test_bad_input_is_one_line_error(tmp_path):

@@ -1,0 +1,33 @@
+"""The reconstruction methods by name.
+
+`METHODS` is a plain dict from name to a `baselines.base.Method` instance; other packages (DMesh) register
+themselves by adding to it: `METHODS["dmesh"] = DMeshMethod()`.
+"""
+from __future__ import annotations
+
+from baselines.alpha_wrap import AlphaWrap
+from baselines.base import Method
+from baselines.bpa import BallPivoting
+from baselines.psr import ScreenedPoisson
+from baselines.sdf_mc import SignedDistanceMC
+from baselines.tsdf import TSDFFusion
+from baselines.udf_mc import UnsignedDistanceMC
+
+METHODS: dict[str, Method] = {m.name: m for m in (
+    ScreenedPoisson(), SignedDistanceMC(), BallPivoting(), AlphaWrap(), UnsignedDistanceMC(), TSDFFusion())}
+
+
+def get_method(name: str) -> Method:
+    """The registered method `name`; raises ValueError listing the known names."""
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r}; choose from {', '.join(sorted(METHODS))}") from None
+
+from baselines.dmesh_pointcloud import DMeshPointCloud  # noqa: E402  (DMesh itself, behind the same interface)
+
+METHODS[DMeshPointCloud.name] = DMeshPointCloud()
+
+from baselines.dmesh_fit import DMeshFromMesh  # noqa: E402  (DMesh from a mesh, Exp. 1 / Table 1)
+
+METHODS[DMeshFromMesh.name] = DMeshFromMesh()

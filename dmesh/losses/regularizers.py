@@ -1,0 +1,95 @@
+"""Regularisers of the reconstruction procedures (paper section 3.4; DESIGN.md section 5).
+
+Letters: N points, T tets, M scored faces, E finite power-diagram edges.
+
+- Weight: sum over finite power-diagram edges of min(length, 1); gradients reach positions and weights
+  through the orthocentres. Favours fewer, larger cells (a simpler mesh).
+- Real: on faces weighted by detached Lambda_wdt (normalised by their sum), the mean |r_i - mean(r)| over
+  a face's vertices (face mean detached: smoothness), plus, on faces whose max r > 0.8, the mean of
+  (1 - r_i) (growth next to real points, closing holes).
+- Quality: sum of aspect ratio (clamped to [1, 20]) x max edge length x Lambda over the faces, divided by
+  the detached sum of Lambda. Aspect ratio = max edge / (min height * 2 / sqrt(3)) (1 for equilateral).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from dmesh import geometry
+from dmesh.wdt import PowerDiagram
+
+
+def weight_regularizer(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram,
+                       max_length: float = 1.0) -> torch.Tensor:
+    """Sum of the finite power-diagram edge lengths, each clamped at `max_length` (float64, 0-dim)."""
+    inner = np.flatnonzero(~pd.is_hull)
+    if len(inner) == 0:
+        return torch.zeros((), dtype=torch.float64)
+    cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets).long())
+    ft = torch.from_numpy(pd.face_tets[inner]).long()
+    length = (cc[ft[:, 0]] - cc[ft[:, 1]]).norm(dim=1)
+    return length.clamp_max(max_length).sum()
+
+
+def real_regularizer(reals: torch.Tensor, faces: torch.Tensor, face_weights: torch.Tensor,
+                     smooth: bool = True, grow: bool = True, grow_threshold: float = 0.8) -> torch.Tensor:
+    """Smoothness + growth of real values over faces (float64, 0-dim).
+
+    Args:
+        reals: (N,) real values; faces: (M, 3) int64; face_weights: (M,) (detached inside), e.g. Lambda_wdt.
+        smooth: include mean |r_i - mean(r)| per face; grow: include mean (1 - r_i) on faces with
+            max r > grow_threshold.
+    """
+    if len(faces) == 0:
+        return torch.zeros((), dtype=torch.float64)
+    r = reals.double()[faces]
+    w = face_weights.detach().double()
+    total = w.sum().clamp_min(1e-12)
+    out = torch.zeros((), dtype=torch.float64)
+    if smooth:
+        out = out + (w * (r - r.mean(1, keepdim=True).detach()).abs().mean(1)).sum() / total
+    if grow:
+        near = (r.detach().max(1).values > grow_threshold).double()
+        out = out + (w * near * (1.0 - r).mean(1)).sum() / total
+    return out
+
+
+def aspect_ratios(points: torch.Tensor, faces: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(M,) aspect ratio max edge / (min height * 2/sqrt(3)) (unclamped) and (M,) max edge length (float64)."""
+    p = points.double()
+    a, b, c = p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]
+    edges = torch.stack([(b - a).norm(dim=1), (c - b).norm(dim=1), (a - c).norm(dim=1)], dim=1)
+    longest = edges.max(1).values
+    area2 = torch.linalg.cross(b - a, c - a).norm(dim=1)           # twice the area
+    min_height = area2 / longest.clamp_min(1e-12)
+    ratio = longest / (min_height * (2.0 / math.sqrt(3.0))).clamp_min(1e-12)
+    return ratio, longest
+
+
+def quality_regularizer(points: torch.Tensor, faces: torch.Tensor, prob: torch.Tensor,
+                        max_ratio: float = 20.0, min_prob: float = 0.0) -> torch.Tensor:
+    """sum(clamp(AR, 1, max_ratio) * max edge * Lambda) / sum(Lambda).detach() (float64, 0-dim).
+
+    Faces with Lambda <= `min_prob` are left out of both sums (each would add at most min_prob * 20 * its
+    edge to the numerator): with 1e-4, the graph shrinks several times early in an optimisation, where most
+    scored faces have an imaginary vertex."""
+    if min_prob > 0:
+        keep = torch.nonzero(prob.detach() > min_prob).squeeze(1)
+        faces, prob = faces[keep], prob[keep]
+    if len(faces) == 0:
+        return torch.zeros((), dtype=torch.float64)
+    ratio, longest = aspect_ratios(points, faces)
+    lam = prob.double()
+    return (ratio.clamp(1.0, max_ratio) * longest * lam).sum() / lam.detach().sum().clamp_min(1e-12)
+
+
+def ramp(step: int, start: float, end: float, steps: int) -> float:
+    """Linear interpolation from `start` (step 0) to `end` (step >= steps)."""
+    if steps <= 0 or step >= steps:
+        return float(end)
+    return float(start + (end - start) * step / steps)
+
+
+__all__ = ["weight_regularizer", "real_regularizer", "quality_regularizer", "aspect_ratios", "ramp"]

@@ -1,0 +1,522 @@
+"""Point cloud to mesh (the paper's Exp. 2): expected Chamfer distance, regularisers, two phases.
+
+Letters: G input points, N DMesh points, M scored faces, S samples per step, F output faces.
+
+Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
+1. Normalise the input (mean to the origin, max norm 1); keep `num_target` of the points as the Chamfer
+   target; initialise from `num_init` seeds (real) plus their Voronoi vertices in [-1, 1]^3 (imaginary),
+   plus the 8 corners of [-1.25, 1.25]^3 (imaginary, also in the seeds' triangulation; they keep it
+   three-dimensional for flat inputs and the surface away from the hull), all weights 1.
+2. Phase 1 (`steps_phase1`): every step re-triangulates and scores the WDT faces and the candidates
+   (`DMesh.face_probabilities`), samples the probable faces, and minimises expected Chamfer + weight, real
+   (ramped) and quality regularisers over positions, weights and reals with `BoundedAdam`.
+3. Phase 2 (`steps_phase2`): the WDT is computed once and frozen: its faces get Lambda_wdt = 1 and
+   Lambda = dmin of their real values; only the reals move, under expected Chamfer + the growth real
+   regulariser. At the steps in `freeze_phase2`, points on the current mesh are frozen at real value 1.
+4. The mesh: faces of the final WDT whose three real values exceed `threshold`, oriented consistently per
+   connected component, mapped back to the input frame.
+
+A run can be resumed from `state_path` (written atomically every `save_every` steps and at the end of each
+phase): same config and same input give the same continuation, except that the per-phase candidate set and
+neighbour cache restart empty after a resume (they are rebuilt within a few steps).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import logging
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
+from dmesh.losses.regularizers import quality_regularizer, ramp, real_regularizer, weight_regularizer
+from dmesh.probability import ProbabilityConfig, dmin
+from dmesh.recon.init import seeds_and_voronoi
+from dmesh.recon.optim import BoundedAdam, StepConfig
+
+log = logging.getLogger(__name__)
+
+#: Fewest distinct input points accepted.
+MIN_POINTS = 10
+#: Half-size of the box whose corners are added as imaginary points (unit-radius frame).
+CORNER_BOX = 1.25
+
+
+@dataclass(frozen=True)
+class PointCloudConfig:
+    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
+
+    num_init: int = 10_000          # input points used as real seeds
+    max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
+    voronoi_keep: str = "largest"   # which `max_voronoi` to keep: "largest" empty spheres, or "random"
+    domain: float = 1.0             # Voronoi vertices outside [-domain, domain]^3 are dropped
+    num_target: int = 100_000       # input points used as the Chamfer target (random subset)
+    num_samples: int = 100_000      # points sampled on the DMesh per step (two strata of half each)
+    steps_phase1: int = 1000        # steps optimising positions, weights and reals
+    steps_phase2: int = 500         # steps optimising reals on the frozen tessellation
+    lr: float = 3e-4                # Adam learning rate (positions, weights; reals: lr / max_real)
+    update_bound: float = 3e-4      # per-step bound of each coordinate (reals: update_bound / max_real)
+    max_real: float = 3e-3          # upstream's real-value scale (sets the reals' lr and bound)
+    grad_clip: float | None = None  # per-point gradient norm clip (None: update_bound / lr)
+    k_max: int = 100                # largest (and first) K of the target -> ours term
+    mass_tol: float = 1e-4          # residual probability mass that makes K grow
+    prob_threshold: float = 1e-3    # faces below this stratum factor are never sampled
+    lambda_weight: float = 1e-8     # weight regulariser (power-diagram edge lengths)
+    lambda_real_start: float = 1e-3  # real regulariser coefficient at phase-1 step 0
+    lambda_real_end: float = 1e-3   # ... after `real_ramp_steps`, and in phase 2
+    real_ramp_steps: int = 100      # phase-1 steps of the linear ramp of the real coefficient
+    lambda_quality: float = 1e-3    # quality regulariser (aspect ratio x max edge x Lambda)
+    lambda_normal: float = 0.0      # normal term of Eq. 13 (needs input normals)
+    freeze_phase1: tuple = ()       # phase-1 steps at which points on the mesh are frozen real
+    freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
+    alpha_wdt: float = 1000.0       # sigmoid sharpness of Lambda_wdt
+    alpha_real: float = 100.0       # softmin sharpness of Lambda_real
+    knn_interval: int = 10          # kNN candidate triples every this many steps
+    knn_k: int = 8                  # neighbours of the kNN candidate triples
+    knn_thresholds: tuple = (0.0, 0.2, 0.4, 0.6, 0.8)  # real-value thresholds of the kNN passes
+    active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
+    threshold: float = 0.5          # real value above which a point is on the final mesh
+    orient: bool = True             # orient the output faces consistently per component
+    save_every: int = 50            # steps between resumable state saves (with a state path)
+    workers: int = 2                # threads of the k-d tree queries
+    seed: int = 0                   # seed of every random choice
+
+    def __post_init__(self):
+        ints = ("num_init", "num_target", "num_samples", "k_max", "knn_k")
+        for name in ints:
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"PointCloudConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("steps_phase1", "steps_phase2", "real_ramp_steps", "knn_interval", "save_every"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("lr", "update_bound", "max_real", "domain", "alpha_wdt", "alpha_real"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"PointCloudConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("lambda_weight", "lambda_real_start", "lambda_real_end", "lambda_quality",
+                     "lambda_normal", "prob_threshold", "mass_tol"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.voronoi_keep not in ("largest", "random"):
+            raise ValueError(f"PointCloudConfig.voronoi_keep must be 'largest' or 'random', got {self.voronoi_keep!r}")
+        if not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"PointCloudConfig.threshold must be in [0, 1), got {self.threshold}")
+        object.__setattr__(self, "knn_thresholds", tuple(float(t) for t in self.knn_thresholds))
+        object.__setattr__(self, "freeze_phase1", tuple(int(s) for s in self.freeze_phase1))
+        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
+
+    @classmethod
+    def paper(cls, **overrides) -> "PointCloudConfig":
+        """The published settings (appendix 10.2; upstream exp_2 configs with lr 3e-4)."""
+        return cls(**overrides)
+
+    @classmethod
+    def fast(cls, **overrides) -> "PointCloudConfig":
+        """A CPU budget: at most about two minutes per shape on 2 cores.
+
+        The paper's initialisation (10K seeds and all their Voronoi vertices, ~60K points) with the paper's
+        lr and bound, but 4 + 25 steps instead of 1000 + 500, 50K target points and 50K samples per step
+        (instead of 100K each) and K <= 16. Chosen by measurement on the torus (2 cores, 100K points,
+        cd_p2s x1e-3 / wall s): this preset 1.49 / 103; the same with 3 + 30 steps and 30K samples
+        1.74 / 97; phase 2 only (0 + 40 steps) 1.88 / 84; the paper preset cut to 5 + 25 steps 1.33 / 376
+        and to 2 + 2 steps 1.76 / 103 (a phase-1 step at 60K points costs ~14-30 s here, so the full paper
+        schedule takes hours); 2K seeds + 4K random Voronoi vertices with 20 + 20 steps at lr 1e-3 4.26
+        (fewer imaginary points leave spurious faces that short runs cannot carve, and a larger lr
+        scrambles the tessellation: 10K seeds with 2 + 20 steps at lr 1e-3 gave 3.07). The weight
+        regulariser (coefficient 1e-8, one orthocentre pass over every tet) is off."""
+        base = dict(num_init=10_000, max_voronoi=None, num_target=50_000, num_samples=50_000,
+                    steps_phase1=4, steps_phase2=25, k_max=16, lambda_weight=0.0, real_ramp_steps=4,
+                    freeze_phase2=(0, 12), save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def tiny(cls, **overrides) -> "PointCloudConfig":
+        """Seconds, for tests and the CLI smoke run: the fast preset's recipe at 1000 seeds (all Voronoi
+        vertices, ~4K points), 2 + 15 steps, 4K target points and samples."""
+        base = dict(num_init=1000, max_voronoi=None, num_target=4000, num_samples=4000,
+                    steps_phase1=2, steps_phase2=15, k_max=12, lambda_weight=0.0, real_ramp_steps=2,
+                    freeze_phase2=(0, 8), knn_interval=5, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "PointCloudConfig":
+        """`paper`, `fast` or `tiny`."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+        return getattr(cls, name)(**overrides)
+
+    def probability_config(self) -> ProbabilityConfig:
+        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
+                                 knn_interval=self.knn_interval, knn_k=self.knn_k,
+                                 knn_thresholds=self.knn_thresholds, active_band=self.active_band)
+
+    def step_config(self) -> StepConfig:
+        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real,
+                          grad_clip=self.grad_clip)
+
+
+PRESETS = ("paper", "fast", "tiny")
+
+
+@dataclass
+class PointCloudResult:
+    """Output of `reconstruct`.
+
+    Attributes:
+        mesh: `trimesh.Trimesh` in the input frame (F faces; may be empty).
+        dmesh: the final `DMesh` (in the unit-radius frame of `center`/`scale`).
+        center: (3,) float64 and scale: float, the normalisation x -> (x - center) * scale.
+        timings: seconds per stage and "total".
+        history: one dict per step (phase, step, loss, cd_gt, cd_ours, k, faces).
+        info: counts (points, real seeds, final faces, ...).
+    """
+
+    mesh: object
+    dmesh: object
+    center: np.ndarray
+    scale: float
+    timings: dict = field(default_factory=dict)
+    history: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+def check_points(points, normals=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Validated float64 copies of (G, 3) points and optional (G, 3) normals; ValueError naming the problem."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    if len(pts) == 0:
+        raise ValueError("the point cloud is empty")
+    bad = ~np.isfinite(pts).all(1)
+    if bad.any():
+        raise ValueError(f"the point cloud has NaN or inf coordinates ({int(bad.sum())} of {len(pts)} points)")
+    distinct = len(np.unique(pts, axis=0))
+    if distinct == 1:
+        raise ValueError(f"all {len(pts)} points are identical")
+    if distinct < MIN_POINTS:
+        raise ValueError(f"need at least {MIN_POINTS} distinct points, got {distinct}")
+    nrm = None
+    if normals is not None:
+        nrm = np.asarray(normals, dtype=np.float64)
+        if nrm.shape != pts.shape:
+            raise ValueError(f"normals must have the points' shape {pts.shape}, got {nrm.shape}")
+        if not np.isfinite(nrm).all():
+            raise ValueError("normals contain NaN or inf")
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = nrm / np.maximum(length, 1e-12)
+    return pts, nrm
+
+
+class _Clock:
+    """Accumulates seconds per stage."""
+
+    def __init__(self, timings: dict):
+        self.timings = timings
+
+    @contextmanager
+    def __call__(self, name: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
+
+    def add(self, other: dict, prefix: str = "") -> None:
+        for k, v in other.items():
+            self.timings[prefix + k] = self.timings.get(prefix + k, 0.0) + v
+
+
+def _fingerprint(points: np.ndarray, cfg: PointCloudConfig) -> str:
+    h = hashlib.sha256(np.ascontiguousarray(points).tobytes())
+    h.update(repr(sorted(dataclasses.asdict(cfg).items())).encode())
+    return h.hexdigest()[:16]
+
+
+def _hard_mask(reals: torch.Tensor, faces: np.ndarray, threshold: float) -> np.ndarray:
+    return (reals.detach().numpy()[faces] > threshold).all(1)
+
+
+def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
+                callback: Callable[[dict], None] | None = None,
+                state_path: str | os.PathLike | None = None) -> PointCloudResult:
+    """Reconstructs a mesh from a point cloud with DMesh.
+
+    Args:
+        points: (G, 3) float input points (any frame); normals: (G, 3) float or None (used only when
+            `config.lambda_normal` > 0).
+        config: `PointCloudConfig` (None: the paper preset).
+        callback: called after every step with {"phase", "step", "steps", "loss", "cd_gt", "cd_ours", "k",
+            "faces" (current mesh faces), "candidates" (scored faces), "samples", "seconds"}; also with {"stage": name} when a stage starts ("init", "phase1", "phase2",
+            "extract").
+        state_path: file for the resumable state; an existing state of the same input and config is resumed.
+    Returns:
+        `PointCloudResult`.
+    Raises:
+        ValueError: bad points (empty, too few, NaN, all identical) or config.
+    """
+    cfg = config or PointCloudConfig.paper()
+    pts_in, nrm_in = check_points(points, normals)
+    if cfg.lambda_normal > 0 and nrm_in is None:
+        raise ValueError("lambda_normal > 0 needs normals")
+    from dmesh.representation import DMesh
+
+    timings: dict = {}
+    clock = _Clock(timings)
+    t_start = time.perf_counter()
+    cpu_start = time.process_time()
+    notify = callback or (lambda info: None)
+    rng = np.random.default_rng(cfg.seed)
+    torch.manual_seed(cfg.seed)
+    fingerprint = _fingerprint(pts_in, cfg)
+
+    notify({"stage": "init"})
+    with clock("init"):
+        center = pts_in.mean(0)
+        radius = float(np.linalg.norm(pts_in - center, axis=1).max())
+        scale = 1.0 / radius
+        pts = (pts_in - center) * scale
+        tidx = rng.choice(len(pts), cfg.num_target, replace=False) if cfg.num_target < len(pts) else None
+        target = pts if tidx is None else pts[tidx]
+        target_n = None if nrm_in is None else (nrm_in if tidx is None else nrm_in[tidx])
+        positions, reals = seeds_and_voronoi(pts, cfg.num_init, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
+                                             cfg.voronoi_keep)
+        dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
+        chamfer = ExpectedChamfer(target, target_n if cfg.lambda_normal > 0 else None, k_max=cfg.k_max,
+                                  mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal, workers=cfg.workers)
+    info = {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
+            "real_seeds": int((reals > 0.5).sum()), "fingerprint": fingerprint}
+    history: list = []
+    phase, start = 1, 0
+    opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config())
+    resumed = _load_state(state_path, fingerprint)
+    if resumed is not None:
+        phase, start = resumed["phase"], resumed["step"]
+        with torch.no_grad():
+            dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
+        train = ("points", "weights", "reals") if phase == 1 else ("reals",)
+        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), train)
+        if resumed.get("optimizer") is not None:
+            opt.load_state_dict(resumed["optimizer"])
+        chamfer.k = int(resumed["k"])
+        rng.bit_generator.state = resumed["rng"]
+        history = list(resumed["history"])
+        timings.update(resumed["timings"])
+        info["resumed_from"] = {"phase": phase, "step": start}
+        log.info("resuming from phase %d step %d", phase, start)
+
+    def save(next_phase: int, next_step: int) -> None:
+        if state_path is None:
+            return
+        _save_state(state_path, {
+            "fingerprint": fingerprint, "phase": next_phase, "step": next_step,
+            "points": dm.points.detach().clone(), "weights": dm.weights.detach().clone(),
+            "reals": dm.reals.detach().clone(),
+            "optimizer": opt.state_dict() if next_step > 0 else None, "k": chamfer.k,
+            "rng": rng.bit_generator.state, "history": history, "timings": dict(timings)})
+
+    # ----------------------------------------------------------------------------------------- phase 1
+    if phase == 1:
+        notify({"stage": "phase1"})
+        for step in range(start, cfg.steps_phase1):
+            t0 = time.perf_counter()
+            stage_t: dict = {}
+            fp = dm.face_probabilities(timings=stage_t)
+            clock.add(stage_t, "phase1_")
+            pd = fp.power_diagram
+            hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
+            if step in cfg.freeze_phase1:
+                opt.freeze(torch.from_numpy(_points_of(pd.faces[hard], len(dm))))
+            with clock("phase1_sampling"):
+                samples = sample_faces(dm.points, fp.faces, fp.prob_wdt, dm.reals, fp.prob, cfg.num_samples,
+                                       rng, cfg.prob_threshold, with_normals=cfg.lambda_normal > 0)
+            with clock("phase1_chamfer"):
+                loss_rec, fig = chamfer(samples)
+            with clock("phase1_regularizers"):
+                loss = loss_rec
+                if cfg.lambda_weight > 0:
+                    loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd)
+                coef = ramp(step, cfg.lambda_real_start, cfg.lambda_real_end, cfg.real_ramp_steps)
+                if coef > 0:
+                    loss = loss + coef * real_regularizer(dm.reals, fp.faces, fp.prob_wdt)
+                if cfg.lambda_quality > 0:
+                    loss = loss + cfg.lambda_quality * quality_regularizer(dm.points, fp.faces, fp.prob,
+                                                                                 min_prob=1e-4)
+            with clock("phase1_backward"):
+                opt.zero_grad()
+                if loss.requires_grad:
+                    loss.backward()
+            with clock("phase1_step"):
+                opt.step()
+            rec = {"phase": 1, "step": step, "steps": cfg.steps_phase1, "loss": float(loss.detach()),
+                   "cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
+                   "candidates": int(len(fp.faces)), "samples": len(samples),
+                   "seconds": time.perf_counter() - t0}
+            history.append(rec)
+            notify(rec)
+            if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < cfg.steps_phase1:
+                save(1, step + 1)
+        phase, start = 2, 0
+        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), train=("reals",))
+        save(2, 0)
+
+    # ----------------------------------------------------------------------------------------- phase 2
+    notify({"stage": "phase2"})
+    with clock("phase2_wdt"):
+        pd = dm.power_diagram()
+        faces = torch.from_numpy(pd.faces.astype(np.int64))
+        ones = torch.ones(len(faces), dtype=dm.points.dtype)
+    for step in range(start, cfg.steps_phase2):
+        t0 = time.perf_counter()
+        if step in cfg.freeze_phase2:
+            hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
+            opt.freeze(torch.from_numpy(_points_of(pd.faces[hard], len(dm))))
+        with clock("phase2_sampling"):
+            prob = dmin(dm.reals[faces].double(), cfg.alpha_real)
+            samples = sample_faces(dm.points, faces, ones, dm.reals, prob, cfg.num_samples, rng,
+                                   cfg.prob_threshold, with_normals=cfg.lambda_normal > 0)
+        with clock("phase2_chamfer"):
+            loss_rec, fig = chamfer(samples)
+            loss = loss_rec
+            if cfg.lambda_real_end > 0:
+                loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
+        with clock("phase2_backward"):
+            opt.zero_grad()
+            if loss.requires_grad:
+                loss.backward()
+            opt.step()
+        hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
+        rec = {"phase": 2, "step": step, "steps": cfg.steps_phase2, "loss": float(loss.detach()), "cd_gt": fig["cd_gt"],
+               "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()), "candidates": int(len(faces)),
+               "samples": len(samples), "seconds": time.perf_counter() - t0}
+        history.append(rec)
+        notify(rec)
+        if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < cfg.steps_phase2:
+            save(2, step + 1)
+    save(3, 0)
+
+    # ------------------------------------------------------------------------------------- extraction
+    notify({"stage": "extract"})
+    with clock("extract"):
+        mesh = extract(dm, cfg.threshold, pd)
+    if cfg.orient:
+        with clock("orient"):
+            orient_faces(mesh)
+    mesh.vertices = np.asarray(mesh.vertices) / scale + center
+    # "total_cpu": process CPU seconds (all threads), a machine-load-independent companion of "total".
+    for key, now in (("total", time.perf_counter() - t_start), ("total_cpu", time.process_time() - cpu_start)):
+        timings[key] = now if resumed is None else timings.get(key, 0.0) + now
+    info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
+                 "hidden_points": int(pd.hidden.sum()), "final_k": int(chamfer.k)})
+    return PointCloudResult(mesh, dm, center, scale, timings, history, info)
+
+
+def _points_of(faces: np.ndarray, n: int) -> np.ndarray:
+    mask = np.zeros(n, bool)
+    mask[np.asarray(faces, dtype=np.int64).reshape(-1)] = True
+    return mask
+
+
+def extract(dm, threshold: float = 0.5, pd=None):
+    """Faces of the WDT (`pd`, or a fresh one) whose 3 vertices have real value > threshold, as a trimesh
+    over the used points (float64, the DMesh's frame)."""
+    import trimesh
+
+    pd = pd if pd is not None else dm.power_diagram()
+    faces = pd.faces[_hard_mask(dm.reals, pd.faces, threshold)].astype(np.int64)
+    mesh = trimesh.Trimesh(dm.points.detach().double().numpy(), faces, process=False)
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def orient_faces(mesh) -> None:
+    """Consistent winding per connected component (in place), outward for closed components.
+
+    A breadth-first walk over faces sharing a manifold edge flips each face to traverse the shared edge
+    opposite to its already-oriented neighbour; then each component whose signed volume is negative
+    (closed components) is flipped as a whole. Non-manifold edges do not propagate orientation.
+    """
+    faces = np.asarray(mesh.faces, dtype=np.int64).copy()
+    nf = len(faces)
+    if nf == 0:
+        return
+    # Directed half-edges of every face.
+    he = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1).reshape(-1, 2)
+    key = np.sort(he, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    manifold = counts[inv] == 2
+    order = np.argsort(inv, kind="stable")
+    # Pair the two half-edges of each manifold edge.
+    ids = order[manifold[order]]
+    pairs = ids.reshape(-1, 2)
+    fa, fb = pairs[:, 0] // 3, pairs[:, 1] // 3
+    # Same direction on both faces means one of them must flip relative to the other.
+    same = (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)
+    adj = [[] for _ in range(nf)]
+    for a, b, s in zip(fa.tolist(), fb.tolist(), same.tolist()):
+        if a != b:
+            adj[a].append((b, s))
+            adj[b].append((a, s))
+    flip = np.zeros(nf, bool)
+    seen = np.zeros(nf, bool)
+    comp = np.full(nf, -1)
+    ncomp = 0
+    for root in range(nf):
+        if seen[root]:
+            continue
+        seen[root] = True
+        comp[root] = ncomp
+        stack = [root]
+        while stack:
+            f = stack.pop()
+            for g, s in adj[f]:
+                if not seen[g]:
+                    seen[g] = True
+                    comp[g] = ncomp
+                    flip[g] = flip[f] ^ s
+                    stack.append(g)
+        ncomp += 1
+    faces[flip] = faces[flip][:, ::-1]
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    t = v[faces]
+    vol = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2]))
+    comp_vol = np.bincount(comp, weights=vol, minlength=ncomp)
+    neg = comp_vol[comp] < 0
+    faces[neg] = faces[neg][:, ::-1]
+    mesh.faces = faces
+
+
+def _save_state(path, state: dict) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _load_state(path, fingerprint: str) -> dict | None:
+    if path is None or not Path(path).exists():
+        return None
+    try:
+        state = torch.load(path, weights_only=False)
+    except Exception as exc:  # an unreadable state is ignored, not fatal: the run starts over
+        log.warning("ignoring unreadable state %s: %s", path, exc)
+        return None
+    if state.get("fingerprint") != fingerprint:
+        log.info("state %s is for another input or config; starting over", path)
+        return None
+    if state["phase"] == 3:
+        state["phase"], state["step"] = 2, 10**9  # finished: skip straight to extraction
+    return state
+
+
+__all__ = ["PointCloudConfig", "PointCloudResult", "PRESETS", "reconstruct", "check_points", "extract",
+           "orient_faces"]

@@ -1,0 +1,195 @@
+"""`dmesh reconstruct pointcloud INPUT -o OUT.obj`: DMesh reconstruction of a point cloud.
+
+INPUT is a point cloud (`.npy` with 3 or 6 columns, `.xyz`/`.txt`/`.pts` text with 3 or 6 columns, or a
+`.ply` without faces, optionally with nx/ny/nz) or a mesh (OBJ, OFF, STL, GLB, or PLY with faces), which is
+sampled (`--samples` area-uniform points with face normals). The output mesh is in INPUT's frame;
+`OUT.timings.json` beside it holds the seconds per stage, the config and the final figures. Every file is
+written under a temporary name and renamed.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+NAME = "reconstruct"
+HELP = "reconstruct a mesh with DMesh from a point cloud (or a mesh, sampled)"
+
+POINT_SUFFIXES = (".npy", ".xyz", ".txt", ".pts")
+MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
+
+
+def add_arguments(p):
+    from dmesh.recon.pointcloud import PRESETS
+
+    p.add_argument("kind", choices=["pointcloud"], help="input kind")
+    p.add_argument("input", metavar="INPUT", help="points (.npy/.xyz/.txt/.pts/.ply) or a mesh (sampled)")
+    p.add_argument("-o", "--out", required=True, help="output mesh (.obj, .ply, .off or .stl)")
+    p.add_argument("--preset", choices=PRESETS, default="fast", help="settings preset (default: fast)")
+    p.add_argument("--normals", action="store_true",
+                   help="use the input normals in the loss (Eq. 13; lambda_normal 1e-3 unless --set)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="total optimisation steps, split 2:1 between phase 1 and phase 2 as in the paper")
+    p.add_argument("--samples", type=int, default=100_000,
+                   help="points sampled when INPUT is a mesh (default: 100000)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a PointCloudConfig field (repeatable), e.g. --set num_init=5000")
+    p.add_argument("--state", default=None, help="resumable state file (resumed when it matches)")
+
+
+def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
+    """(G, 3) float64 points and (G, 3) normals or None from a point file or a sampled mesh.
+
+    Raises ValueError (one line) for unreadable, empty or malformed files."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a point cloud")
+    suffix = path.suffix.lower()
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: empty file")
+    if suffix in POINT_SUFFIXES:
+        if suffix == ".npy":
+            try:
+                arr = np.load(path, allow_pickle=False)
+            except Exception as exc:  # numpy raises several types for corrupt files
+                raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+        else:
+            try:
+                arr = np.loadtxt(path, ndmin=2, comments="#")
+            except Exception as exc:
+                raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+        return _columns(arr, path)
+    if suffix == ".ply":
+        import trimesh
+
+        try:
+            loaded = trimesh.load(str(path), process=False)
+        except Exception as exc:
+            raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+        if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):
+            return _sample_mesh(path, samples, seed)
+        pts = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
+        normals = None
+        raw = getattr(loaded, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+        names = set(raw.dtype.names or ()) if isinstance(raw, np.ndarray) else set(raw or ())
+        if {"nx", "ny", "nz"} <= names:  # trimesh keeps PLY vertex properties as a dict or a record array
+            normals = np.concatenate([np.asarray(raw[k], np.float64).reshape(-1, 1) for k in ("nx", "ny", "nz")],
+                                     axis=1)
+            if len(normals) != len(pts):
+                normals = None
+        if len(pts) == 0:
+            raise ValueError(f"{path}: no points")
+        return pts, normals
+    if suffix in MESH_SUFFIXES:
+        return _sample_mesh(path, samples, seed)
+    raise ValueError(f"{path}: unsupported input format {suffix or '(none)'!r}; use one of "
+                     f"{', '.join(POINT_SUFFIXES + ('.ply',) + MESH_SUFFIXES)}")
+
+
+def _columns(arr: np.ndarray, path: Path):
+    arr = np.asarray(arr)
+    if arr.size == 0:
+        raise ValueError(f"{path}: no points")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{path}: expected numbers, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if arr.ndim != 2 or arr.shape[1] not in (3, 6):
+        raise ValueError(f"{path}: expected rows of 3 (x y z) or 6 (x y z nx ny nz) numbers, got shape {arr.shape}")
+    return arr[:, :3], (arr[:, 3:] if arr.shape[1] == 6 else None)
+
+
+def _sample_mesh(path: Path, samples: int, seed: int):
+    from datasets.meshes import load_mesh
+    from datasets.sampling import sample_points
+
+    if samples < 1:
+        raise ValueError(f"--samples must be >= 1, got {samples}")
+    pts, nrm = sample_points(load_mesh(path), samples, seed=seed)
+    return pts.astype(np.float64), nrm.astype(np.float64)
+
+
+def _parse_overrides(items: list[str]) -> dict:
+    """KEY=VALUE strings to a dict of Python values (JSON literals, else strings)."""
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
+def build_config(preset: str, seed: int, steps: int | None, normals: bool, overrides: dict):
+    from dmesh.recon.pointcloud import PointCloudConfig
+
+    fields = {f.name for f in dataclasses.fields(PointCloudConfig)}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ValueError(f"unknown config keys {unknown}; known: {sorted(fields)}")
+    values = {"seed": seed}
+    if steps is not None:
+        if steps < 0:
+            raise ValueError(f"--steps must be >= 0, got {steps}")
+        values["steps_phase1"] = int(math.ceil(steps * 2 / 3))
+        values["steps_phase2"] = steps - values["steps_phase1"]
+    if normals:
+        values["lambda_normal"] = 1e-3
+    for key in ("freeze_phase1", "freeze_phase2", "knn_thresholds"):
+        if key in overrides and not isinstance(overrides[key], (list, tuple)):
+            overrides[key] = [overrides[key]]
+    values.update(overrides)
+    try:
+        return PointCloudConfig.preset(preset, **values)
+    except TypeError as exc:
+        raise ValueError(f"bad config value: {exc}") from None
+
+
+def run(args) -> int:
+    from dmesh.recon.pointcloud import reconstruct
+    from eval.io import atomic_path, write_text
+    from eval.progress import progress
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".obj", ".ply", ".off", ".stl"):
+        raise ValueError(f"{out}: output must end in .obj, .ply, .off or .stl")
+    cfg = build_config(args.preset, args.seed, args.steps, args.normals, _parse_overrides(args.set))
+    points, normals = read_points(args.input, args.samples, args.seed)
+    if args.normals and normals is None:
+        raise ValueError(f"{args.input}: --normals given but the input has no normals")
+
+    total = cfg.steps_phase1 + cfg.steps_phase2
+    bar = progress(total=total, desc="dmesh", unit="step")
+    done = {"n": 0}
+
+    def on_step(rec: dict) -> None:
+        if "stage" in rec:
+            bar.set_description(f"dmesh {rec['stage']}")
+            return
+        bar.update(1)
+        done["n"] += 1
+        bar.set_postfix(loss=f"{rec['loss']:.4g}", faces=rec["faces"], refresh=False)
+
+    try:
+        res = reconstruct(points, normals, cfg, callback=on_step, state_path=args.state)
+    finally:
+        bar.close()
+    if len(res.mesh.faces) == 0:
+        raise ValueError("the reconstruction has no faces (no point kept a real value above the threshold)")
+    with atomic_path(out) as tmp:
+        res.mesh.export(tmp, file_type=out.suffix.lower().lstrip("."))
+    report = {"input": str(args.input), "output": str(out), "preset": args.preset,
+              "timings_s": {k: round(v, 4) for k, v in res.timings.items()}, "info": res.info,
+              "final": res.history[-1] if res.history else None, "config": dataclasses.asdict(cfg)}
+    timings_path = out.with_name(out.stem + ".timings.json")
+    write_text(timings_path, json.dumps(report, indent=2, default=str) + "\n")
+    print(f"wrote {out} ({len(res.mesh.faces)} faces, {res.timings['total']:.1f} s) and {timings_path}")
+    return 0
