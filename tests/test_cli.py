@@ -32,3 +32,10 @@ def test_bad_input_is_one_line_error(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "unknown synthetic shape" in r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_cli_lists_the_library_presets():
+    from dmesh.recon.pointcloud import PRESETS
+    from eval.commands.reconstruct import PRESET_NAMES
+
+    assert set(PRESET_NAMES) == set(PRESETS)

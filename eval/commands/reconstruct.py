@@ -22,13 +22,16 @@ POINT_SUFFIXES = (".npy", ".xyz", ".txt", ".pts")
 MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
 
 
-def add_arguments(p):
-    from dmesh.recon.pointcloud import PRESETS
+#: The presets of `dmesh.recon.pointcloud.PRESETS`, listed here so building the parser imports no torch
+#: (a test checks the two agree).
+PRESET_NAMES = ("fast", "paper", "tiny")
 
+
+def add_arguments(p):
     p.add_argument("kind", choices=["pointcloud"], help="input kind")
     p.add_argument("input", metavar="INPUT", help="points (.npy/.xyz/.txt/.pts/.ply) or a mesh (sampled)")
     p.add_argument("-o", "--out", required=True, help="output mesh (.obj, .ply, .off or .stl)")
-    p.add_argument("--preset", choices=PRESETS, default="fast", help="settings preset (default: fast)")
+    p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="settings preset (default: fast)")
     p.add_argument("--normals", action="store_true",
                    help="use the input normals in the loss (Eq. 13; lambda_normal 1e-3 unless --set)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
