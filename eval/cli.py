@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = logging.WARNING if args.quiet else (logging.INFO, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # PyOpenGL reports platform probing (and its own shutdown) at INFO: noise for users.
+    logging.getLogger("OpenGL").setLevel(max(level, logging.WARNING))
     import eval.progress
 
     eval.progress.QUIET = bool(args.quiet)
