@@ -12,15 +12,6 @@ using namespace dmesh::bind;
 
 namespace {
 
-template <class T>
-void require(const char* fn, const char* name, const In<T>& a, long rows, long cols) {
-  const bool ok = cols < 0 ? a.ndim() == 1 : (a.ndim() == 2 && long(a.shape(1)) == cols);
-  if (!ok || (rows >= 0 && long(a.shape(0)) != rows)) {
-    throw std::invalid_argument(std::string(fn) + ": " + name + " has the wrong shape (expected " +
-                                (rows >= 0 ? std::to_string(rows) : std::string("rows")) +
-                                (cols >= 0 ? " x " + std::to_string(cols) : std::string("")) + ")");
-  }
-}
 
 template <class T>
 void require_csr(const char* fn, const In<index_t>& off, const In<index_t>& idx, long rows, long max_value) {

@@ -15,18 +15,6 @@ using namespace dmesh::bind;
 
 namespace {
 
-template <class T>
-void require(const char* fn, const char* name, const In<T>& a, long rows, long cols) {
-  const bool ok = cols < 0 ? a.ndim() == 1 : (a.ndim() == 2 && long(a.shape(1)) == cols);
-  if (!ok || (rows >= 0 && long(a.shape(0)) != rows)) {
-    std::string got = "(";
-    for (size_t k = 0; k < a.ndim(); ++k) got += (k ? ", " : "") + std::to_string(a.shape(k));
-    throw std::invalid_argument(std::string(fn) + ": " + name + " must have shape (" +
-                                (rows >= 0 ? std::to_string(rows) : std::string("rows")) +
-                                (cols >= 0 ? ", " + std::to_string(cols) : std::string(",")) + "), got " + got +
-                                ")");
-  }
-}
 
 void require_image(const char* fn, const char* name, const In<float>& a, index_t H, index_t W) {
   if (a.ndim() != 2 || long(a.shape(0)) != H || long(a.shape(1)) != W) {

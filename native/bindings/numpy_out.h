@@ -4,6 +4,8 @@
 #include <nanobind/ndarray.h>
 
 #include <initializer_list>
+#include <stdexcept>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -25,5 +27,20 @@ NumpyArray<T> to_numpy(std::vector<T>&& v, std::initializer_list<size_t> shape) 
 // raise instead of copying silently.
 template <class T>
 using In = nb::ndarray<const T, nb::c_contig, nb::device::cpu>;
+
+// Checks that `a` has shape (rows, cols) (cols < 0: 1-D; rows < 0: any rows); the error names the
+// function, the argument, the expected and the actual shape.
+template <class T>
+inline void require(const char* fn, const char* name, const In<T>& a, long rows, long cols) {
+  const bool ok = cols < 0 ? a.ndim() == 1 : (a.ndim() == 2 && long(a.shape(1)) == cols);
+  if (!ok || (rows >= 0 && long(a.shape(0)) != rows)) {
+    std::string got = "(";
+    for (size_t k = 0; k < a.ndim(); ++k) got += (k ? ", " : "") + std::to_string(a.shape(k));
+    throw std::invalid_argument(std::string(fn) + ": " + name + " must have shape (" +
+                                (rows >= 0 ? std::to_string(rows) : std::string("rows")) +
+                                (cols >= 0 ? ", " + std::to_string(cols) : std::string(",")) + "), got " + got +
+                                ")");
+  }
+}
 
 }  // namespace dmesh::bind
