@@ -16,6 +16,12 @@ through bisector planes, orthocentres and hull-ray directions) -> Delta -> Lambd
 - Lambda_wdt = sigmoid(alpha_wdt * min(Delta, 10 / alpha_wdt)); Lambda_real = dmin of the three real values
   (softmin weights detached); Lambda = Lambda_wdt * Lambda_real. Optionally (paper Eq. 10) Lambda_wdt is
   multiplied by the power-cell existence factor min_i sigmoid(alpha_pc (sum_F delta_i(F) - eps_pc)).
+
+Cost control (a deviation from upstream, `ProbabilityConfig.active_band`): every Delta is computed exactly
+in the native searches, but only faces that can carry a gradient are recomputed in torch: WDT faces below
+Lambda_wdt's clamp (Delta < 10/alpha) and non-WDT faces with Delta > -active_band/alpha (Lambda_wdt >
+sigmoid(-10) = 4.5e-5 for the default band of 10). The others keep their exact values without a gradient.
+`active_band=None` recomputes every face (exact gradients everywhere; `delta()` always does).
 """
 from __future__ import annotations
 
