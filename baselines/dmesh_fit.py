@@ -2,8 +2,9 @@
 
 Input kind "mesh": `inputs.mesh` is the normalised GT mesh (max vertex norm 0.8). The output mesh keeps
 the GT vertices first, in order, followed by the inserted points, so the harness can compute RE / FP
-(`info["re_fp_vertices"]`). The state reported is the one with the highest RE - FP reached during the run
-(upstream likewise keeps its best checkpoints); the final state's figures are in `info`.
+(`info["re_fp_vertices"]`). The state reported is the kept one (`MeshToDMeshResult.best`: the highest RE
+with FP <= 0.5 %, else the highest RE - FP; upstream likewise keeps its best checkpoints); the final
+state's figures are in `info`.
 """
 from __future__ import annotations
 

@@ -109,3 +109,16 @@ def test_stanford_bunny_res4_reaches_the_paper_figures():
     mesh, _ = normalize(load_mesh(shared_mesh("stanford/bun_zipper_res4_948.ply")), radius=0.8)
     r = mesh_to_dmesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), fast_config(steps=1500))
     assert r.best.re >= 0.997 and r.best.fp <= 0.005, (r.best.re, r.best.fp, r.best.step)
+
+
+def test_kept_state_prefers_acceptable_fp_then_re():
+    from dmesh.recon.mesh_to_dmesh import Snapshot, _better
+
+    def snap(re, fp):
+        return Snapshot(0, re, fp, np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3), np.int64))
+
+    assert _better(0.99, 0.004, snap(0.999, 0.006), 0.005)      # acceptable FP beats higher RE
+    assert not _better(0.999, 0.006, snap(0.99, 0.004), 0.005)
+    assert _better(0.998, 0.004, snap(0.995, 0.0), 0.005)       # among acceptable: higher RE
+    assert _better(0.99, 0.02, snap(0.98, 0.02), 0.005)          # neither acceptable: RE - FP
+    assert _better(0.5, 0.5, None, 0.005)

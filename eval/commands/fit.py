@@ -66,7 +66,7 @@ def run(args) -> int:
     finally:
         bar.close()
     r = fitted["result"]
-    b = r.best  # the state with the highest RE - FP (the final state's figures are reported too)
+    b = r.best  # the kept state (see MeshToDMeshResult.best); the final state's figures are reported too
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
