@@ -128,6 +128,16 @@ void parallel_for(std::int64_t n, int threads, Body&& body);
 #include <thread>
 
 namespace dmesh::render_detail {
+// Shared by the soft and the tetrahedral renderer: screen tile side and small vector helpers.
+constexpr int kTile = 16;
+
+inline void cross3(const double a[3], const double b[3], double out[3]) {
+  out[0] = a[1] * b[2] - a[2] * b[1];
+  out[1] = a[2] * b[0] - a[0] * b[2];
+  out[2] = a[0] * b[1] - a[1] * b[0];
+}
+inline double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
 template <class Body>
 void parallel_for(std::int64_t n, int threads, Body&& body) {
   if (n <= 0) return;

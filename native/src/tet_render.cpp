@@ -12,14 +12,6 @@ namespace dmesh {
 namespace {
 using namespace render_detail;
 
-constexpr int kTile = 16;
-
-inline void cross3(const double a[3], const double b[3], double out[3]) {
-  out[0] = a[1] * b[2] - a[2] * b[1];
-  out[1] = a[2] * b[0] - a[0] * b[2];
-  out[2] = a[0] * b[1] - a[1] * b[0];
-}
-inline double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 // Ray (origin 0, direction d) against triangle (a, b, c): the ray parameter (= depth, as d_z = -1) of the
 // crossing, or infinity when the ray misses. Barycentric tolerance 1e-12 so shared edges are not missed.
