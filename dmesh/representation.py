@@ -80,8 +80,9 @@ class DMesh:
     def power_diagram(self) -> PowerDiagram:
         return PowerDiagram.from_points(self.points.detach(), self.weights.detach())
 
-    def extract_mesh(self, threshold: float = 0.5):
-        """The final mesh: faces of the current WDT whose 3 vertices have real value > threshold.
+    def extract_mesh(self, threshold: float = 0.5, mode: str = "all"):
+        """The final mesh: faces of the current WDT whose 3 vertices have real value > threshold, filtered
+        by `mode` ("all", "no_interior" or "sheet"; see `dmesh.extract`).
 
         Returns a `trimesh.Trimesh` over the used points only (vertices renumbered), without orientation
         fixing (faces are sorted triples).
@@ -89,8 +90,9 @@ class DMesh:
         import trimesh
 
         pd = self.power_diagram()
-        real = (self.reals.detach() > threshold).numpy()
-        faces = pd.faces[real[pd.faces].all(1)]
+        from dmesh.extract import mesh_faces
+
+        faces = pd.faces[mesh_faces(pd, (self.reals.detach() > threshold).numpy(), mode)]
         mesh = trimesh.Trimesh(self.points.detach().double().numpy(), faces, process=False)
         mesh.remove_unreferenced_vertices()
         return mesh

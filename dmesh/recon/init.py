@@ -7,6 +7,15 @@ Seeds are a random subset of the input points (real value 1); the Voronoi vertic
 circumcentres of their Delaunay tets), which lie near the medial axis, are added inside the box
 [-domain, domain]^3 as imaginary points (real value 0), with optional box corners (see below). All weights start at 1 (equal weights: the first
 triangulation is the Delaunay triangulation).
+
+`vertices="poles"` keeps only each seed's two poles (Amenta and Bern's crust: the farthest vertex of its
+Voronoi cell, and the farthest on the other side of the seed), instead of every Voronoi vertex. Poles lie
+near the medial axis, so the faces among seeds that survive are the crust, which contains the restricted
+Delaunay surface: the first mesh has no holes. The other Voronoi vertices include the circumcentres of flat
+tets on the surface; they hug the surface and punch holes into the first mesh. Measured on the torus
+(10K seeds, point-to-surface CD x1e-3 of the first mesh): all vertices 2.30 (52K of them, 2616 boundary
+edges), poles 0.97 (12K). Poles also cost about 4x fewer points, which buys more seeds (40K seeds with
+poles: 51K points, CD 0.29).
 """
 from __future__ import annotations
 
@@ -17,7 +26,7 @@ from dmesh import wdt
 
 def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generator, domain: float = 1.0,
                       max_voronoi: int | None = None, corner_box: float | None = 1.25,
-                      keep: str = "largest") -> tuple[np.ndarray, np.ndarray]:
+                      keep: str = "largest", vertices: str = "all") -> tuple[np.ndarray, np.ndarray]:
     """Initial DMesh points and real values.
 
     Args:
@@ -29,6 +38,7 @@ def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generat
         keep: which ones `max_voronoi` keeps: "largest" (those farthest from the seeds, i.e. with the
             largest empty sphere: nearest the medial axis, where they carve; small spheres hug the surface
             and are what punches holes into the first mesh) or "random".
+        vertices: "all" Voronoi vertices (upstream) or each seed's two "poles" (module docstring).
         corner_box: when set, the 8 corners of [-corner_box, corner_box]^3 join the seeds' triangulation
             and are returned as imaginary points: flat inputs (a disc) then still have a 3D triangulation,
             and the surface stays away from the hull. None: seeds only (upstream; fails on flat inputs).
@@ -50,6 +60,11 @@ def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generat
     pd = wdt.PowerDiagram.from_points(np.concatenate([seeds, corners]), None)
     vor = pd.orthocentres
     radius = np.linalg.norm(vor - pd.points[pd.tets[:, 0]], axis=1)
+    if vertices == "poles":
+        chosen = poles(pd, len(seeds))
+        vor, radius = vor[chosen], radius[chosen]
+    elif vertices != "all":
+        raise ValueError(f"vertices must be 'all' or 'poles', got {vertices!r}")
     inside = np.isfinite(vor).all(1) & (np.abs(vor) <= domain).all(1)
     vor, radius = vor[inside], radius[inside]
     vor, first = np.unique(np.round(vor, 12), axis=0, return_index=True)
@@ -66,4 +81,38 @@ def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generat
     return positions, reals
 
 
-__all__ = ["seeds_and_voronoi"]
+def poles(pd: wdt.PowerDiagram, n: int) -> np.ndarray:
+    """Tets whose circumcentres are the poles of points 0..n-1 of the (unweighted) diagram `pd`.
+
+    The first pole of point i is the farthest circumcentre among its tets; the second is the farthest
+    among those on the other side of i (negative dot product with the first pole's direction).
+    Returns the sorted unique tet ids (int64).
+    """
+    rows = pd.point_tets.rows()
+    tets = pd.point_tets.indices.astype(np.int64)
+    keep = rows < n
+    rows, tets = rows[keep], tets[keep]
+    d = pd.orthocentres[tets] - pd.points[rows]
+    r = np.linalg.norm(d, axis=1)
+    first = _argmax_per_row(rows, r, n)
+    ok = first >= 0
+    dir1 = np.zeros((n, 3))
+    dir1[ok] = d[first[ok]]
+    other = np.einsum("ij,ij->i", d, dir1[rows]) < 0
+    second = _argmax_per_row(rows[other], r[other], n)
+    second = np.flatnonzero(other)[second[second >= 0]]
+    return np.unique(np.r_[tets[first[ok]], tets[second]])
+
+
+def _argmax_per_row(rows: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n,) index into `values` of each row's largest value, -1 for empty rows."""
+    out = np.full(n, -1, dtype=np.int64)
+    if len(rows) == 0:
+        return out
+    order = np.lexsort((values, rows))  # by row, then ascending value: each row's last is its max
+    last = np.r_[rows[order][1:] != rows[order][:-1], True]
+    out[rows[order][last]] = order[last]
+    return out
+
+
+__all__ = ["seeds_and_voronoi", "poles"]

@@ -56,6 +56,7 @@ class PointCloudConfig:
     num_init: int = 10_000          # input points used as real seeds
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
     voronoi_keep: str = "largest"   # which `max_voronoi` to keep: "largest" empty spheres, or "random"
+    voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
     domain: float = 1.0             # Voronoi vertices outside [-domain, domain]^3 are dropped
     num_target: int = 100_000       # input points used as the Chamfer target (random subset)
     num_samples: int = 100_000      # points sampled on the DMesh per step (two strata of half each)
@@ -83,6 +84,7 @@ class PointCloudConfig:
     knn_thresholds: tuple = (0.0, 0.2, 0.4, 0.6, 0.8)  # real-value thresholds of the kNN passes
     active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
     threshold: float = 0.5          # real value above which a point is on the final mesh
+    extraction: str = "sheet"       # which real faces make the mesh: "all", "no_interior", "sheet" (dmesh.extract)
     orient: bool = True             # orient the output faces consistently per component
     save_every: int = 50            # steps between resumable state saves (with a state path)
     workers: int = 2                # threads of the k-d tree queries
@@ -105,6 +107,12 @@ class PointCloudConfig:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.voronoi_keep not in ("largest", "random"):
             raise ValueError(f"PointCloudConfig.voronoi_keep must be 'largest' or 'random', got {self.voronoi_keep!r}")
+        from dmesh.extract import MODES
+
+        if self.extraction not in MODES:
+            raise ValueError(f"PointCloudConfig.extraction must be one of {', '.join(MODES)}, got {self.extraction!r}")
+        if self.voronoi not in ("all", "poles"):
+            raise ValueError(f"PointCloudConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"PointCloudConfig.threshold must be in [0, 1), got {self.threshold}")
         object.__setattr__(self, "knn_thresholds", tuple(float(t) for t in self.knn_thresholds))
@@ -118,31 +126,35 @@ class PointCloudConfig:
 
     @classmethod
     def fast(cls, **overrides) -> "PointCloudConfig":
-        """A CPU budget: at most about two minutes per shape on 2 cores.
+        """A CPU budget: well under two minutes per shape on 2 cores.
 
-        The paper's initialisation (10K seeds and all their Voronoi vertices, ~60K points) with the paper's
-        lr and bound, but 4 + 25 steps instead of 1000 + 500, 50K target points and 50K samples per step
-        (instead of 100K each) and K <= 16. Chosen by measurement on the torus (2 cores, 100K points,
-        cd_p2s x1e-3 / wall s): this preset 1.49 / 103; the same with 3 + 30 steps and 30K samples
-        1.74 / 97; phase 2 only (0 + 40 steps) 1.88 / 84; the paper preset cut to 5 + 25 steps 1.33 / 376
-        and to 2 + 2 steps 1.76 / 103 (a phase-1 step at 60K points costs ~14-30 s here, so the full paper
-        schedule takes hours); 2K seeds + 4K random Voronoi vertices with 20 + 20 steps at lr 1e-3 4.26
-        (fewer imaginary points leave spurious faces that short runs cannot carve, and a larger lr
-        scrambles the tessellation: 10K seeds with 2 + 20 steps at lr 1e-3 gave 3.07). The weight
-        regulariser (coefficient 1e-8, one orthocentre pass over every tet) is off."""
-        base = dict(num_init=10_000, max_voronoi=None, num_target=50_000, num_samples=50_000,
-                    steps_phase1=4, steps_phase2=25, k_max=16, lambda_weight=0.0, real_ramp_steps=4,
-                    freeze_phase2=(0, 12), save_every=10)
+        40K seeds and their poles (about 90K points; `dmesh.recon.init`) instead of 10K seeds and all
+        their Voronoi vertices; no phase-1 step; 10 phase-2 steps on 50K target points and 50K samples;
+        one-sheet extraction (`dmesh.extract`). Chosen by measurement on the torus (2 cores shared with
+        another job, 100K input points, cd_p2s x1e-3 / wall s):
+        - the previous fast preset (10K seeds, all Voronoi vertices, 4 + 25 steps): 1.49 / 33;
+        - its first mesh, before any step: 2.30 (the Voronoi vertices near the surface punch holes);
+        - 40K seeds + poles, no step: 0.283 with "all" extraction, 0.199 with "sheet";
+        - the same with 10 phase-2 steps: 0.197 / 32 (this preset);
+        - with 3 phase-1 steps at lr 1e-5: 0.218 / 76; 20K seeds, 6 phase-1 steps at lr 2e-5: 0.461 / 86
+          against 0.403 with none; at the paper's lr 3e-4, 4 phase-1 steps take 0.283 to 1.18.
+        A phase-1 step at 90K points costs 10-20 s here, and its first steps are noise: Adam moves every
+        coordinate by about lr, which at this point density scrambles the nearly degenerate tets on the
+        surface. So within two minutes the gradient steps cannot improve on the initialisation, and the
+        preset spends its time on density instead. Phase 1 needs the `paper` schedule (hours here)."""
+        base = dict(num_init=40_000, voronoi="poles", max_voronoi=None, num_target=50_000, num_samples=50_000,
+                    steps_phase1=0, steps_phase2=10, k_max=16, lambda_weight=0.0, real_ramp_steps=0,
+                    freeze_phase2=(0, 5), save_every=10)
         base.update(overrides)
         return cls(**base)
 
     @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
-        """Seconds, for tests and the CLI smoke run: the fast preset's recipe at 1000 seeds (all Voronoi
-        vertices, ~4K points), 2 + 15 steps, 4K target points and samples."""
-        base = dict(num_init=1000, max_voronoi=None, num_target=4000, num_samples=4000,
-                    steps_phase1=2, steps_phase2=15, k_max=12, lambda_weight=0.0, real_ramp_steps=2,
-                    freeze_phase2=(0, 8), knn_interval=5, save_every=10)
+        """Seconds, for tests and the CLI smoke run: 1000 seeds and their poles (~2.5K points), 2 + 15 steps
+        at a tenth of the paper's lr, 4K target points and samples."""
+        base = dict(num_init=1000, voronoi="poles", max_voronoi=None, num_target=4000, num_samples=4000,
+                    steps_phase1=2, steps_phase2=15, lr=3e-5, update_bound=3e-5, k_max=12, lambda_weight=0.0,
+                    real_ramp_steps=2, freeze_phase2=(0, 8), knn_interval=5, save_every=10)
         base.update(overrides)
         return cls(**base)
 
@@ -287,7 +299,7 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         target = pts if tidx is None else pts[tidx]
         target_n = None if nrm_in is None else (nrm_in if tidx is None else nrm_in[tidx])
         positions, reals = seeds_and_voronoi(pts, cfg.num_init, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
-                                             cfg.voronoi_keep)
+                                             cfg.voronoi_keep, cfg.voronoi)
         dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
         chamfer = ExpectedChamfer(target, target_n if cfg.lambda_normal > 0 else None, k_max=cfg.k_max,
                                   mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal, workers=cfg.workers)
@@ -405,7 +417,7 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     # ------------------------------------------------------------------------------------- extraction
     notify({"stage": "extract"})
     with clock("extract"):
-        mesh = extract(dm, cfg.threshold, pd)
+        mesh = extract(dm, cfg.threshold, pd, cfg.extraction)
     if cfg.orient:
         with clock("orient"):
             orient_faces(mesh)
@@ -424,13 +436,15 @@ def _points_of(faces: np.ndarray, n: int) -> np.ndarray:
     return mask
 
 
-def extract(dm, threshold: float = 0.5, pd=None):
-    """Faces of the WDT (`pd`, or a fresh one) whose 3 vertices have real value > threshold, as a trimesh
-    over the used points (float64, the DMesh's frame)."""
+def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all"):
+    """Faces of the WDT (`pd`, or a fresh one) whose 3 vertices have real value > threshold, filtered by
+    `mode` (`dmesh.extract.mesh_faces`), as a trimesh over the used points (float64, the DMesh's frame)."""
     import trimesh
 
+    from dmesh.extract import mesh_faces
+
     pd = pd if pd is not None else dm.power_diagram()
-    faces = pd.faces[_hard_mask(dm.reals, pd.faces, threshold)].astype(np.int64)
+    faces = pd.faces[mesh_faces(pd, dm.reals.detach().numpy() > threshold, mode)].astype(np.int64)
     mesh = trimesh.Trimesh(dm.points.detach().double().numpy(), faces, process=False)
     mesh.remove_unreferenced_vertices()
     return mesh
