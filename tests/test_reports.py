@@ -123,7 +123,8 @@ def test_empty_store_gives_empty_tables_not_errors(tmp_path):
     written = write_reports(path, tmp_path / "rep", renders=False)
     names = sorted(p.name for p in written)
     assert names == sorted(["table2_pointcloud.md", "table2_pointcloud.csv", "table2_multiview.md",
-                            "table2_multiview.csv", "table1.md", "table1.csv", "index.html"])
+                            "table2_multiview.csv", "table1.md", "table1.csv", "index.html", "ablation_weight.md",
+                            "ablation_weight.csv", "ablation_quality.md", "ablation_quality.csv"])
     assert "No point cloud runs" in (tmp_path / "rep" / "table2_pointcloud.md").read_text()
 
 
@@ -173,3 +174,28 @@ def test_render_shows_the_object_both_sides():
     sheet = trimesh.Trimesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 2, 1], [0, 3, 2]])
     back = figures.render(mesh=sheet, size=96)
     assert (back.min(axis=2) < 250).mean() > 0.2
+
+
+def test_ablation_tables_average_per_value_and_stay_out_of_table2(tmp_path):
+    from eval.reports.ablation import ablation_rows
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        s.upsert(_row("p", "psr", "torus", "closed", "done", 1e-3, 7e-3, 2.0))
+        for i, (lw, lq, shape, cd, faces) in enumerate([(1e-6, 0.0, "torus", 2e-3, 100), (1e-6, 0.0, "bowl", 4e-3, 300),
+                                                        (1e-4, 0.0, "torus", 9e-3, 50), (0.0, 1e-2, "torus", 1e-3, 400)]):
+            r = _row(f"a{i}", "dmesh", shape, "closed", "done", cd, cd, 10.0,
+                     metrics={"cd_p2s": cd, "cd_l1": cd, "faces": faces, "aspect_ratio_mean": 1.5})
+            r.update(config_label=f"lambda_quality={lq},lambda_weight={lw},steps_phase1=40",
+                     config_json={"lambda_weight": lw, "lambda_quality": lq})
+            s.upsert(r)
+        df = s.dataframe()
+    weight = ablation_rows(df, "weight")
+    assert [(r["value"], r["n"]) for r in weight] == [(1e-6, 2), (1e-4, 1)]
+    assert weight[0]["cd_p2s"] == pytest.approx(3e-3) and weight[0]["faces"] == pytest.approx(200)
+    assert weight[0]["paper_cd"] == 7.48 and weight[1]["paper_faces"] == 1786
+    quality = ablation_rows(df, "quality")
+    assert [(r["value"], r["n"], r["paper_aspect_ratio"]) for r in quality] == [(1e-2, 1, 1.55)]
+    write_reports(path, tmp_path / "rep", renders=False)
+    assert [r["method"] for r in csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv"))] == ["psr"]
+    assert "1e-06" in (tmp_path / "rep" / "ablation_weight.md").read_text()

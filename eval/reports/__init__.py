@@ -4,6 +4,7 @@
 
     table2_pointcloud.md/.csv, table2_multiview.md/.csv   CD and time by closed / open / mixed (paper's Table 2)
     table1.md/.csv                                        RE / FP of mesh-to-DMesh runs (paper's Table 1)
+    ablation_weight.md/.csv, ablation_quality.md/.csv     regulariser ablations (paper's Tables 4 and 5)
     figures/bars_<kind>.png                               per-class bar plots of CD and time
     figures/renders_<kind>_<shape>.png                    GT, input and each method's mesh side by side
     index.html                                            links and shows all of the above
@@ -63,7 +64,11 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     out = Path(out)
     work = Path(work) if work else db.parent
     with Store(db) as store:
-        df = select_runs(store.dataframe(), keys)
+        df_all = select_runs(store.dataframe(), keys)
+    from eval.reports.ablation import KNOBS, ablation_rows, is_ablation, write_ablations
+
+    # Table 2 compares methods at their sweep settings; the regulariser ablations get their own tables.
+    df = df_all[~is_ablation(df_all)] if len(df_all) else df_all
     counts = df["status"].value_counts().to_dict() if len(df) else {}
     written: list[Path] = []
     sections: list[tuple[str, str]] = []
@@ -115,6 +120,19 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     else:
         body.append("<p>No mesh-to-DMesh runs in the store yet (the paper's Table 1 is in the Markdown file).</p>")
     sections.append(("Table 1: mesh to DMesh (RE / FP)", "\n".join(body)))
+
+    ablation_files = write_ablations(df_all, out)
+    written += ablation_files
+    body = [f"<p class='links'>{' '.join(f'<a href={chr(39)}{p.name}{chr(39)}>{p.name}</a>' for p in ablation_files)}</p>"]
+    for knob in KNOBS:
+        rows = ablation_rows(df_all, knob)
+        if rows:
+            body.append(table_html([{**r, "value": f"{r['value']:g}"} for r in rows],
+                                   [("value", KNOBS[knob][0], None), ("n", "n", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3),
+                                    ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1), ("time_s", "time (s)", 1),
+                                    ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)],
+                                   paper_cols=("paper_cd", "paper_faces")))
+    sections.append(("Ablations: weight and quality regularisers (paper Tables 4 and 5)", "\n".join(body)))
 
     if renders and len(df):
         figs = render_figures(df, db, work, figdir, progress=progress)
