@@ -75,3 +75,28 @@ def test_unknown_mode_is_an_error():
     pd = wdt.PowerDiagram.from_points(np.eye(4, 3) + 0.1 * np.arange(4)[:, None], None)
     with pytest.raises(ValueError, match="extraction mode"):
         mesh_faces(pd, np.ones(4, bool), "both")
+
+
+def test_carving_removes_faces_spanning_holes():
+    from scipy.spatial import cKDTree
+
+    from datasets import normalize, sampling, synthetic
+    from dmesh.recon.init import carve_far_faces
+
+    gt, _ = normalize.normalize(synthetic.generate("wavy_sheet", seed=0))   # an open sheet with 3 holes
+    data, _ = sampling.sample_points(gt, 20_000, seed=0)
+    pos, reals = seeds_and_voronoi(data, 4000, np.random.default_rng(0), vertices="poles")
+
+    def far_area(p, r):
+        pd = wdt.PowerDiagram.from_points(p, None)
+        f = pd.faces[mesh_faces(pd, r > 0.5, "sheet")]
+        d = cKDTree(data).query(p[f].mean(1))[0]
+        area = 0.5 * np.linalg.norm(np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]), axis=1)
+        return area[d > 0.05].sum(), len(f)
+
+    before, n_before = far_area(pos, reals)
+    pos2, reals2, added = carve_far_faces(pos, reals, data)
+    after, n_after = far_area(pos2, reals2)
+    assert before > 0.01 and added > 0                # the holes are spanned at first ...
+    assert after == 0.0 and n_after > 0.95 * n_before  # ... and only those faces go
+    assert (reals2[len(reals):] == 0).all() and np.array_equal(pos2[:len(pos)], pos)
