@@ -304,17 +304,13 @@ def config_label(overrides: Mapping) -> str:
 def build_config(method, overrides: Mapping):
     """(config object, config dict): the method's default config with `overrides` applied.
 
-    Works for a frozen dataclass config (validated again by its __post_init__) and for a plain dict.
+    Works for a frozen dataclass config (validated again by its __post_init__; the method's own
+    `resolve_config` applies, e.g. DMesh's `preset` key) and for a plain dict.
     """
     default = method.default_config()
     overrides = dict(overrides)
     if dataclasses.is_dataclass(default):
-        names = {f.name for f in dataclasses.fields(default)}
-        unknown = set(overrides) - names
-        if unknown:
-            raise ValueError(f"method {method.name}: unknown config keys {sorted(unknown)}; "
-                             f"known: {sorted(names)}")
-        cfg = dataclasses.replace(default, **overrides)
+        cfg = method.resolve_config(overrides) if overrides else default
         return cfg, dataclasses.asdict(cfg)
     if default is None:
         default = {}

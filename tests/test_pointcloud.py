@@ -358,3 +358,13 @@ def test_read_points_formats(tmp_path):
     with pytest.raises(ValueError, match="unsupported"):
         (tmp_path / "x.abc").write_text("1 2 3\n")
         read_points(tmp_path / "x.abc")
+
+
+def test_sweep_configs_may_name_a_preset():
+    from baselines.registry import get_method
+    from eval.sweep import build_config
+
+    cfg, as_dict = build_config(get_method("dmesh"), {"preset": "paper", "steps_phase1": 3})
+    assert cfg == PointCloudConfig.paper(steps_phase1=3) and as_dict["num_init"] == 10_000
+    with pytest.raises(ValueError, match="unknown config keys"):
+        build_config(get_method("dmesh"), {"preset": "paper", "stepz": 3})
