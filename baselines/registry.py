@@ -31,3 +31,7 @@ METHODS[DMeshPointCloud.name] = DMeshPointCloud()
 from baselines.dmesh_fit import DMeshFromMesh  # noqa: E402  (DMesh from a mesh, Exp. 1 / Table 1)
 
 METHODS[DMeshFromMesh.name] = DMeshFromMesh()
+
+from baselines.dmesh_multiview import DMeshMultiView  # noqa: E402  (DMesh on multi-view images, Exp. 3)
+
+METHODS[DMeshMultiView.name] = DMeshMultiView()

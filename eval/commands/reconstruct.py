@@ -1,5 +1,8 @@
 """`dmesh reconstruct pointcloud INPUT -o OUT.obj`: DMesh reconstruction of a point cloud.
 
+(`dmesh reconstruct multiview DIR -o OUT.obj` reconstructs from a `dmesh capture` folder instead; see
+`eval.commands._reconstruct_multiview`.)
+
 INPUT is a point cloud (`.npy` with 3 or 6 columns, `.xyz`/`.txt`/`.pts` text with 3 or 6 columns, or a
 `.ply` without faces, optionally with nx/ny/nz) or a mesh (OBJ, OFF, STL, GLB, or PLY with faces), which is
 sampled (`--samples` area-uniform points with face normals). The output mesh is in INPUT's frame;
@@ -16,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 NAME = "reconstruct"
-HELP = "reconstruct a mesh with DMesh from a point cloud (or a mesh, sampled)"
+HELP = "reconstruct a mesh with DMesh from a point cloud (or a mesh, sampled) or from multi-view images"
 
 POINT_SUFFIXES = (".npy", ".xyz", ".txt", ".pts")
 MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
@@ -28,8 +31,9 @@ PRESET_NAMES = ("fast", "paper", "tiny")
 
 
 def add_arguments(p):
-    p.add_argument("kind", choices=["pointcloud"], help="input kind")
-    p.add_argument("input", metavar="INPUT", help="points (.npy/.xyz/.txt/.pts/.ply) or a mesh (sampled)")
+    p.add_argument("kind", choices=["pointcloud", "multiview"], help="input kind")
+    p.add_argument("input", metavar="INPUT", help="points (.npy/.xyz/.txt/.pts/.ply) or a mesh (sampled); "
+                   "multiview: a folder written by `dmesh capture`")
     p.add_argument("-o", "--out", required=True, help="output mesh (.obj, .ply, .off or .stl)")
     p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="settings preset (default: fast)")
     p.add_argument("--normals", action="store_true",
@@ -40,7 +44,7 @@ def add_arguments(p):
     p.add_argument("--samples", type=int, default=100_000,
                    help="points sampled when INPUT is a mesh (default: 100000)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a PointCloudConfig field (repeatable), e.g. --set num_init=5000")
+                   help="override a PointCloudConfig (MultiViewConfig) field (repeatable), e.g. --set num_init=5000")
     p.add_argument("--state", default=None, help="resumable state file (resumed when it matches)")
 
 
@@ -164,6 +168,10 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".obj", ".ply", ".off", ".stl"):
         raise ValueError(f"{out}: output must end in .obj, .ply, .off or .stl")
+    if args.kind == "multiview":
+        from eval.commands._reconstruct_multiview import run_multiview
+
+        return run_multiview(args, _parse_overrides(args.set))
     cfg = build_config(args.preset, args.seed, args.steps, args.normals, _parse_overrides(args.set))
     points, normals = read_points(args.input, args.samples, args.seed)
     if args.normals and normals is None:

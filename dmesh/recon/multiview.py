@@ -1,0 +1,675 @@
+"""Multi-view images to mesh (the paper's Exp. 3): coarse-to-fine epochs, two renderers, two phases.
+
+Letters: V views, H x W pixels (capture), R x R pixels (optimised images), N DMesh points, M scored faces,
+F output faces.
+
+Input: anything with the attributes of `datasets.capture.MultiView` (diffuse, depth, mask (V, H, W),
+world_to_camera (V, 4, 4), fov_y_degrees, resolution), in the conventions of `dmesh.render`.
+
+Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
+1. Normalise: the masked depths are lifted to world points; their bounding-box centre goes to the origin
+   and their largest distance from it to 1 (cameras and depths follow: a similarity, so the diffuse images
+   are unchanged). Images are area-averaged to `resolution` (any ratio, same field of view). Every point
+   stays inside a box [-b, b]^3 with b < the smallest camera's max |coordinate| (at most `box`), so every
+   camera lies outside the convex hull of the points, as the tetrahedral renderer needs.
+2. Epoch 0 starts from a `grid`^3 grid of real points (cell centres over [-grid_extent, grid_extent]^3, all
+   weights 1, all reals 1). Epoch e > 0 re-seeds: `refine_seeds[e-1]` area-uniform samples of the current
+   mesh (after interior-face removal) become real seeds, their Voronoi vertices inside [-domain, domain]^3
+   (all, or the `voronoi_per_seed` x seeds with the largest empty spheres) and the 8 corners of the box
+   imaginary points (`dmesh.recon.init.seeds_and_voronoi`); the previous points are dropped (upstream:
+   only the surface carries over).
+3. Phase 1 of each epoch (`steps_phase1`): every step re-triangulates and scores the faces
+   (`DMesh.face_probabilities`); faces with Lambda_wdt * max(r) > `alpha_thresh` are drawn by the soft
+   renderer (`dmesh.render.soft_render`) with opacity Lambda, over `views_per_step` random views; loss = L1
+   of the diffuse images + `lambda_depth` x L1 of the depth channel (`depth_channel`: nearer is larger,
+   background 0, like upstream's) over whole images (background included, as upstream) + the weight,
+   real (ramped) and quality regularisers; positions, weights and reals
+   move by `BoundedAdam`. Upstream adds 0.1 x the L1 of a hard nvdiffrast render for silhouette gradients;
+   our soft renderer has silhouette gradients itself (analytic coverage), so there is no hard term.
+4. Phase 2 (`steps_phase2`): the WDT is frozen (Lambda_wdt = 1 on its faces, opacity = dmin of the reals)
+   and rendered by the tetrahedral renderer (`dmesh.render.tet_render`, exact depth order); only the reals
+   move, under the same image loss + the growth real regulariser. At the steps in `freeze_phase2` the
+   points on the current mesh are frozen real (upstream).
+5. The mesh: faces of the final WDT whose three reals exceed `threshold`, minus interior faces (`interior`:
+   "apex" drops a face when both of its tets have a real apex, upstream's `remove_invisible`; "visible"
+   keeps only faces that are the first hit of some pixel ray of some view at the capture's resolution;
+   "both" applies both; "none" neither), oriented consistently, mapped back to the input frame. The same
+   extraction (visibility at the optimised resolution) gives the mesh each re-seed samples.
+
+A run can be resumed from `state_path` (written atomically every `save_every` steps and at each phase end):
+the same input and config continue identically, except that the phase's candidate set and neighbour cache
+restart empty after a resume.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+
+from dmesh.losses.regularizers import quality_regularizer, ramp, real_regularizer, weight_regularizer
+from dmesh.probability import ProbabilityConfig, dmin
+from dmesh.recon.init import seeds_and_voronoi
+from dmesh.recon.optim import BoundedAdam, StepConfig
+from dmesh.recon.pointcloud import (_Clock, _fingerprint, _hard_mask, _load_state, _points_of, _save_state,
+                                    orient_faces)
+
+log = logging.getLogger(__name__)
+
+#: Every camera must lie outside [-MIN_BOX, MIN_BOX]^3 of the normalised frame (object radius 1).
+MIN_BOX = 1.05
+#: The point box stays this fraction inside the nearest camera's box (keeps cameras off the hull).
+BOX_MARGIN = 0.98
+INTERIOR_MODES = ("apex", "visible", "both", "none")
+#: Depth range (normalised frame: the object's diameter) mapped to 1 in the depth channel.
+DEPTH_SPAN = 2.0
+
+
+def _tuple(value, n: int, name: str) -> tuple:
+    """`value` (int or sequence) as a tuple of n ints (an int is repeated)."""
+    if isinstance(value, (int, np.integer)):
+        return (int(value),) * n
+    out = tuple(int(v) for v in value)
+    if len(out) != n:
+        raise ValueError(f"MultiViewConfig.{name} needs {n} entries (one per epoch), got {len(out)}")
+    return out
+
+
+@dataclass(frozen=True)
+class MultiViewConfig:
+    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
+
+    grid: int = 20                   # epoch 0: grid^3 real points
+    grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
+    refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
+    voronoi_per_seed: float | None = None  # re-seeds keep <= this many Voronoi vertices per seed (None: all)
+    domain: float = 1.0              # Voronoi vertices outside [-domain, domain]^3 are dropped
+    box: float = 1.25                # points stay in [-b, b]^3, b = min(box, 0.98 x the cameras' box)
+    steps_phase1: tuple = (500, 500, 500, 500)  # per epoch: steps with the soft renderer
+    steps_phase2: tuple = (500, 500, 500, 500)  # per epoch: steps with the tetrahedral renderer
+    lr_first: float = 1e-3           # epoch 0 learning rate (positions, weights; reals: / max_real)
+    bound_first: float = 1e-3        # epoch 0 per-step bound of each coordinate
+    lr: float = 3e-4                 # later epochs' learning rate
+    update_bound: float = 3e-4       # later epochs' per-step bound
+    max_real_first: float = 3e-3     # epoch 0: upstream's real-value scale (reals' lr and bound: lr / it)
+    max_real: float = 3e-3           # later epochs' real-value scale
+    views_per_step: int = 16         # random views rendered per step (upstream batch size)
+    resolution: int | None = None    # images are area-averaged to this side (None: the capture's)
+    lambda_depth: float = 1.0        # weight of the depth channel's L1 (diffuse 1); see `depth_channel`
+    lambda_weight: float = 1e-8      # weight regulariser (power-diagram edge lengths)
+    lambda_real_start: float = 1e-2  # real regulariser coefficient at phase-1 step 0 of each epoch
+    lambda_real_end: float = 1e-3    # ... after `real_ramp_steps`, and in phase 2
+    real_ramp_steps: int = 100       # phase-1 steps of the linear ramp
+    lambda_quality: float = 1e-3     # quality regulariser (aspect ratio x max edge x Lambda)
+    freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
+    alpha_thresh: float = 1e-3       # faces with Lambda_wdt x max(r) at or below it are not drawn
+    edge_width: float = 1.0          # soft renderer: width of the soft band outside each triangle (pixels)
+    render_threads: int | None = None  # renderer threads (None: torch's); 1 makes runs bit-for-bit repeatable
+    alpha_wdt: float = 1000.0        # sigmoid sharpness of Lambda_wdt
+    alpha_real: float = 100.0        # softmin sharpness of Lambda_real
+    knn_interval: int = 10           # kNN candidate triples every this many steps
+    knn_k: int = 8                   # neighbours of the kNN candidate triples
+    active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
+    threshold: float = 0.5           # real value above which a point is on the final mesh
+    interior: str = "apex"           # interior-face removal: "apex", "visible", "both" or "none"
+    orient: bool = True              # orient the output faces consistently per component
+    save_every: int = 50             # steps between resumable state saves (with a state path)
+    seed: int = 0                    # seed of every random choice
+
+    def __post_init__(self):
+        seeds = tuple(int(s) for s in self.refine_seeds)
+        object.__setattr__(self, "refine_seeds", seeds)
+        n = 1 + len(seeds)
+        object.__setattr__(self, "steps_phase1", _tuple(self.steps_phase1, n, "steps_phase1"))
+        object.__setattr__(self, "steps_phase2", _tuple(self.steps_phase2, n, "steps_phase2"))
+        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
+        if int(self.grid) < 2:
+            raise ValueError(f"MultiViewConfig.grid must be >= 2, got {self.grid}")
+        if any(s < 4 for s in seeds):
+            raise ValueError(f"MultiViewConfig.refine_seeds must all be >= 4, got {seeds}")
+        if any(s < 0 for s in self.steps_phase1 + self.steps_phase2):
+            raise ValueError("MultiViewConfig.steps_phase1 / steps_phase2 must be >= 0")
+        for name in ("views_per_step", "knn_k"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"MultiViewConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("real_ramp_steps", "knn_interval", "save_every"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("grid_extent", "domain", "box", "lr_first", "bound_first", "lr", "update_bound",
+                     "max_real_first", "max_real", "edge_width", "alpha_wdt", "alpha_real"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"MultiViewConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("lambda_depth", "lambda_weight", "lambda_real_start", "lambda_real_end",
+                     "lambda_quality", "alpha_thresh"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.voronoi_per_seed is not None and not self.voronoi_per_seed >= 0:
+            raise ValueError(f"MultiViewConfig.voronoi_per_seed must be >= 0 or None, got {self.voronoi_per_seed}")
+        if self.render_threads is not None and int(self.render_threads) < 1:
+            raise ValueError(f"MultiViewConfig.render_threads must be >= 1 or None, got {self.render_threads}")
+        if self.resolution is not None and int(self.resolution) < 4:
+            raise ValueError(f"MultiViewConfig.resolution must be >= 4 or None, got {self.resolution}")
+        if self.interior not in INTERIOR_MODES:
+            raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
+        if not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"MultiViewConfig.threshold must be in [0, 1), got {self.threshold}")
+
+    @property
+    def epochs(self) -> int:
+        return 1 + len(self.refine_seeds)
+
+    @classmethod
+    def paper(cls, **overrides) -> "MultiViewConfig":
+        """The published settings (appendix 10.2; upstream exp_3 thingi/objaverse configs): 4 epochs of
+        500 + 500 steps, 16 views per step at the capture's resolution, real regulariser 1e-2 -> 1e-3 over
+        100 steps (the paper's "1e-2 closed / 1e-3 open" for the first 100 steps; upstream's plant config),
+        diffuse and depth L1 with weight 1 each (upstream's depth is 1 - (ndc_z + 1) / 2 with near 1 and
+        far 3: slope 1.5 / z^2 ~ 0.4 per unit at the object centre; our depth channel's slope is 0.5, see
+        `depth_channel`). Interior faces: upstream's rule ("apex")."""
+        return cls(**overrides)
+
+    @classmethod
+    def fast(cls, **overrides) -> "MultiViewConfig":
+        """A CPU budget (filled in by measurement)."""
+        base = dict(refine_seeds=(1000, 3000), steps_phase1=(40, 30, 30), steps_phase2=(20, 20, 20),
+                    views_per_step=4, resolution=128, lambda_weight=0.0, real_ramp_steps=10,
+                    freeze_phase2=(0,), save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def tiny(cls, **overrides) -> "MultiViewConfig":
+        """Seconds, for tests: a 10^3 grid and one re-seed of 300 points, few steps at 48 pixels."""
+        base = dict(grid=8, refine_seeds=(300,), voronoi_per_seed=2.0, steps_phase1=(30, 15), steps_phase2=(10, 10),
+                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=4, resolution=48,
+                    lambda_weight=0.0, real_ramp_steps=4, freeze_phase2=(0,), interior="both", save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "MultiViewConfig":
+        """`paper`, `fast` or `tiny`."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+        return getattr(cls, name)(**overrides)
+
+    def probability_config(self) -> ProbabilityConfig:
+        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
+                                 knn_interval=self.knn_interval, knn_k=self.knn_k, active_band=self.active_band)
+
+    def step_config(self, epoch: int) -> StepConfig:
+        if epoch == 0:
+            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first)
+        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real)
+
+    def total_steps(self) -> int:
+        return sum(self.steps_phase1) + sum(self.steps_phase2)
+
+
+PRESETS = ("paper", "fast", "tiny")
+
+
+@dataclass
+class MultiViewResult:
+    """Output of `reconstruct`.
+
+    Attributes:
+        mesh: `trimesh.Trimesh` in the input (world) frame (F faces; may be empty).
+        dmesh: the final `DMesh` (in the normalised frame of `center`/`scale`).
+        center: (3,) float64 and scale: float, the normalisation x -> (x - center) * scale.
+        timings: seconds per stage, "total" (wall) and "total_cpu" (process CPU seconds).
+        history: one dict per step (epoch, phase, step, loss, image, faces, drawn, ...).
+        info: counts (views, resolution, points per epoch, final faces, removed interior faces, ...).
+    """
+
+    mesh: object
+    dmesh: object
+    center: np.ndarray
+    scale: float
+    timings: dict = field(default_factory=dict)
+    history: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------------------------------- input
+
+@dataclass
+class _Views:
+    """Validated images (float32) and cameras (float64) of the input, in one frame."""
+
+    diffuse: np.ndarray       # (V, H, W)
+    depth: np.ndarray         # (V, H, W), 0 on background
+    mask: np.ndarray          # (V, H, W) bool
+    world_to_camera: np.ndarray  # (V, 4, 4)
+    fov_y_degrees: float
+
+
+def check_views(views) -> _Views:
+    """Validated copies of a capture's images and cameras; ValueError (one line) naming the problem."""
+    if views is None:
+        raise ValueError("no views given (views is None)")
+    missing = [a for a in ("diffuse", "depth", "world_to_camera", "fov_y_degrees") if not hasattr(views, a)]
+    if missing:
+        raise ValueError(f"views lacks {', '.join(missing)} (expected a datasets.capture.MultiView)")
+    diffuse = np.asarray(views.diffuse, dtype=np.float32)
+    depth = np.asarray(views.depth, dtype=np.float32)
+    if diffuse.ndim != 3 or diffuse.shape[0] == 0:
+        raise ValueError(f"views.diffuse must have shape (V, H, W) with V >= 1, got {diffuse.shape}")
+    if depth.shape != diffuse.shape:
+        raise ValueError(f"views.depth must have the diffuse images' shape {diffuse.shape}, got {depth.shape}")
+    v, h, w = diffuse.shape
+    if h != w:
+        raise ValueError(f"views must be square images, got {h} x {w}")
+    res = getattr(views, "resolution", h)
+    if int(res) != h:
+        raise ValueError(f"views.resolution is {res} but the images are {h} x {w}")
+    mask = getattr(views, "mask", None)
+    mask = depth > 0 if mask is None else np.asarray(mask, dtype=bool)
+    if mask.shape != diffuse.shape:
+        raise ValueError(f"views.mask must have the diffuse images' shape {diffuse.shape}, got {mask.shape}")
+    w2c = np.asarray(views.world_to_camera, dtype=np.float64)
+    if w2c.shape != (v, 4, 4):
+        raise ValueError(f"views.world_to_camera must have shape ({v}, 4, 4), got {w2c.shape}")
+    for name, arr in (("diffuse", diffuse), ("depth", depth), ("world_to_camera", w2c)):
+        if not np.isfinite(arr).all():
+            raise ValueError(f"views.{name} holds NaN or inf ({int((~np.isfinite(arr)).sum())} values)")
+    fov = float(views.fov_y_degrees)
+    if not 0.0 < fov < 180.0:
+        raise ValueError(f"views.fov_y_degrees must be in (0, 180), got {fov}")
+    if (depth[mask] <= 0).any():
+        raise ValueError("views.depth must be positive wherever the mask is set")
+    if not mask.any():
+        raise ValueError("every view is empty (no mask pixel): the object is outside every camera")
+    depth = np.where(mask, depth, 0.0).astype(np.float32)
+    diffuse = np.where(mask, diffuse, 0.0).astype(np.float32)
+    return _Views(diffuse, depth, mask, w2c, fov)
+
+
+def _lift_bounds(vw: _Views) -> tuple[np.ndarray, float]:
+    """Centre (bounding-box centre) and radius (max distance from it) of the lifted mask pixels."""
+    from dmesh.render import Camera
+
+    h = vw.diffuse.shape[1]
+    rays = Camera(np.eye(4), vw.fov_y_degrees, h, h).rays()  # camera-space, z = -1
+    c2w = np.linalg.inv(vw.world_to_camera)
+    lo, hi, clouds = np.full(3, np.inf), np.full(3, -np.inf), []
+    for k in range(len(c2w)):
+        m = vw.mask[k]
+        p = rays[m] * vw.depth[k][m][:, None].astype(np.float64)
+        p = p @ c2w[k, :3, :3].T + c2w[k, :3, 3]
+        if len(p):
+            lo, hi = np.minimum(lo, p.min(0)), np.maximum(hi, p.max(0))
+            clouds.append(p)
+    center = 0.5 * (lo + hi)
+    radius = max(float(np.linalg.norm(p - center, axis=1).max()) for p in clouds)
+    return center, radius
+
+
+def _area_matrix(src: int, dst: int) -> np.ndarray:
+    """(dst, src) float64 area-averaging weights: row j covers source pixels [j s/d, (j + 1) s/d)."""
+    edges = np.arange(dst + 1) * (src / dst)
+    lo, hi = edges[:-1, None], edges[1:, None]
+    k = np.arange(src)[None, :]
+    overlap = np.clip(np.minimum(hi, k + 1) - np.maximum(lo, k), 0.0, None)
+    return overlap / overlap.sum(1, keepdims=True)
+
+
+def downsample(images: np.ndarray, size: int) -> np.ndarray:
+    """Area average of (V, H, H) images to (V, size, size) float32 (any ratio; the identity at size H).
+
+    The result's pixel (i, j) is the mean over its footprint [i H/size, (i + 1) H/size) x [...] of the
+    source, so a camera of the same field of view at `size` pixels samples the same scene.
+    """
+    h = images.shape[1]
+    if size == h:
+        return images.astype(np.float32, copy=True)
+    a = _area_matrix(h, size)
+    return (a @ images.astype(np.float64) @ a.T).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------------- helpers
+
+def depth_channel(depth: torch.Tensor, alpha: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
+    """The depth the loss compares: (far - z) / DEPTH_SPAN per fragment, composited, 0 on background.
+
+    Like upstream's 1 - (ndc_z + 1) / 2, it falls with distance and is 0 on the background (as far away as
+    `far`, beyond every point of the box): peeling a wrongly opaque layer off a background pixel then lowers
+    the loss monotonically. Raw distances would not (background 0 but deeper layers larger), and carving the
+    initial grid stalls. Composited values are sum a T z = `depth` and sum a T = `alpha`, so the channel is
+    (far alpha - depth) / DEPTH_SPAN, linear in the renderer's outputs.
+
+    Args:
+        depth, alpha: (B, R, R) renderer outputs; far: (B,) per view.
+    """
+    return (far[:, None, None] * alpha - depth) / DEPTH_SPAN
+
+
+def _grid_points(n: int, extent: float, box: float) -> np.ndarray:
+    c = (np.arange(n) + 0.5) / n * (2.0 * extent) - extent
+    g = np.stack(np.meshgrid(c, c, c, indexing="ij"), -1).reshape(-1, 3)
+    return np.clip(g, -box, box)
+
+
+def sample_surface(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) float64 area-uniform random points on a triangle mesh (one uniform barycentric point per draw)."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        return tri.reshape(-1, 3)[:n].copy()
+    pick = rng.choice(len(f), n, p=area / area.sum())
+    u, w = rng.random(n), rng.random(n)
+    fold = u + w > 1.0
+    u[fold], w[fold] = 1.0 - u[fold], 1.0 - w[fold]
+    t = tri[pick]
+    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0])
+
+
+def interior_faces(pd, real: np.ndarray) -> np.ndarray:
+    """(F,) bool over `pd.faces`: both adjacent tets have a real apex (upstream's `remove_invisible`).
+
+    Args:
+        pd: `PowerDiagram`; real: (N,) bool, points on the mesh. Hull faces (one tet) are never interior.
+    """
+    ft = pd.face_tets.astype(np.int64)
+    out = ft[:, 1] >= 0
+    inner = np.flatnonzero(out)
+    fsum = pd.faces[inner].astype(np.int64).sum(1)
+    for side in (0, 1):
+        # The apex is the tet vertex not in the face: the sum of the tet's vertices minus the face's.
+        apex = pd.tets[ft[inner, side]].astype(np.int64).sum(1) - fsum
+        out[inner] &= real[apex]
+    return out
+
+
+def visible_faces(points: np.ndarray, pd, keep: np.ndarray, cameras) -> np.ndarray:
+    """(F,) bool over `pd.faces`: faces of `keep` ((F,) bool) that are the first hit of some pixel ray.
+
+    Renders the faces of `keep` opaque (all others transparent) with the tetrahedral walk; a pixel's
+    compositing stops at its first opaque face, so its fragment list holds exactly that face.
+    """
+    from dmesh import native
+
+    opacity = keep.astype(np.float32)
+    seen = np.zeros(len(pd.faces), bool)
+    if not keep.any():
+        return seen
+    threads = max(1, torch.get_num_threads())
+    for cam in cameras:
+        raw = native.tet_render_forward(points, pd.tets, pd.faces, pd.face_tets, opacity, cam.world_to_camera,
+                                        cam.fov_y, cam.height, cam.width, cam.near, 0.5, 1e-4, threads)
+        seen[np.asarray(raw.frag_face, dtype=np.int64)] = True
+    return seen & keep
+
+
+def extract(dm, threshold: float = 0.5, pd=None, interior: str = "apex", cameras=None):
+    """The mesh of a DMesh after interior-face removal, as a trimesh over the used points (DMesh frame).
+
+    Args:
+        dm: `DMesh`; threshold: real value above which a point is on the mesh; pd: its `PowerDiagram` (None:
+            a fresh one); interior: one of `INTERIOR_MODES` (module docstring); cameras: the
+            `dmesh.render.Camera`s of the "visible" test.
+    Returns:
+        (trimesh.Trimesh, number of faces removed as interior).
+    """
+    import trimesh
+
+    pd = pd if pd is not None else dm.power_diagram()
+    real = dm.reals.detach().numpy() > threshold
+    keep = _hard_mask(dm.reals, pd.faces, threshold)
+    before = int(keep.sum())
+    if interior in ("apex", "both"):
+        keep &= ~interior_faces(pd, real)
+    if interior in ("visible", "both"):
+        if cameras is None:
+            raise ValueError("interior='visible' needs the cameras")
+        keep = visible_faces(dm.points.detach().numpy(), pd, keep, cameras)
+    mesh = trimesh.Trimesh(dm.points.detach().double().numpy(), pd.faces[keep].astype(np.int64), process=False)
+    mesh.remove_unreferenced_vertices()
+    return mesh, before - int(keep.sum())
+
+
+# ------------------------------------------------------------------------------------------------- procedure
+
+def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable[[dict], None] | None = None,
+                state_path: str | os.PathLike | None = None) -> MultiViewResult:
+    """Reconstructs a mesh from multi-view diffuse and depth images with DMesh.
+
+    Args:
+        views: a `datasets.capture.MultiView` (or anything with its attributes), any world frame.
+        config: `MultiViewConfig` (None: the paper preset).
+        callback: called after every step with {"epoch", "phase", "step", "steps", "loss", "image", "faces"
+            (current mesh faces), "drawn" (faces rendered), "candidates", "seconds"}; and with
+            {"stage": name} when a stage starts ("init", "epoch<e>_phase1", "epoch<e>_phase2", "extract").
+        state_path: file for the resumable state; an existing state of the same input and config is resumed.
+    Returns:
+        `MultiViewResult`.
+    Raises:
+        ValueError: bad views (none, mismatched shapes, NaN, empty masks, cameras too close) or config.
+    """
+    from dmesh.render import Camera, soft_render_views, tet_render_views
+    from dmesh.representation import DMesh
+
+    cfg = config or MultiViewConfig.paper()
+    if not isinstance(cfg, MultiViewConfig):
+        raise TypeError(f"config must be a MultiViewConfig, got {type(cfg).__name__}")
+    vw = check_views(views)
+    timings: dict = {}
+    clock = _Clock(timings)
+    t_start, cpu_start = time.perf_counter(), time.process_time()
+    notify = callback or (lambda info: None)
+    rng = np.random.default_rng(cfg.seed)
+    torch.manual_seed(cfg.seed)
+
+    notify({"stage": "init"})
+    with clock("init"):
+        center, radius = _lift_bounds(vw)
+        scale = 1.0 / radius
+        # World -> normalised: x' = (x - center) * scale; camera space scales by the same factor.
+        w2c = vw.world_to_camera.copy()
+        w2c[:, :3, 3] = scale * (w2c[:, :3, 3] + np.einsum("vij,j->vi", w2c[:, :3, :3], center))
+        eyes = -np.einsum("vji,vj->vi", w2c[:, :3, :3], w2c[:, :3, 3])
+        cam_box = float(np.abs(eyes).max(1).min())
+        if BOX_MARGIN * cam_box < MIN_BOX:
+            raise ValueError(f"a camera is too close to the object: every camera must lie outside the box "
+                             f"[-{MIN_BOX}, {MIN_BOX}]^3 around it (object radius 1), the nearest is at "
+                             f"{cam_box:.3f}")
+        box = min(cfg.box, BOX_MARGIN * cam_box)
+        h = vw.diffuse.shape[1]
+        res = h if cfg.resolution is None else min(int(cfg.resolution), h)
+        # Depth channel: (far - z) / 2 where covered, 0 on background (see `depth_channel`).
+        far = np.linalg.norm(eyes, axis=1) + math.sqrt(3.0) * box
+        target_d = torch.from_numpy(downsample(vw.diffuse, res))
+        lifted = (far[:, None, None] * vw.mask - vw.depth.astype(np.float64) * scale) / DEPTH_SPAN
+        target_z = torch.from_numpy(downsample(lifted, res))
+        far = torch.from_numpy(far.astype(np.float32))
+        cameras = Camera.from_views(w2c, vw.fov_y_degrees, res)
+        fingerprint = _fingerprint(np.concatenate([vw.diffuse.ravel(), vw.depth.ravel(),
+                                                   vw.world_to_camera.ravel().astype(np.float32)]), cfg)
+    n_views = len(cameras)
+    batch = min(cfg.views_per_step, n_views)
+    info: dict = {"views": n_views, "capture_resolution": h, "resolution": res, "views_per_step": batch,
+                  "box": box, "fingerprint": fingerprint, "epochs": []}
+    history: list = []
+
+    def image_loss(out, ids) -> torch.Tensor:
+        loss = (out["diffuse"] - target_d[ids]).abs().mean()
+        if cfg.lambda_depth > 0:
+            z = depth_channel(out["depth"], out["alpha"], far[ids])
+            loss = loss + cfg.lambda_depth * (z - target_z[ids]).abs().mean()
+        return loss
+
+    def init_points(epoch: int, mesh) -> DMesh:
+        if epoch == 0 or mesh is None:
+            pts = _grid_points(cfg.grid, cfg.grid_extent, box)
+            return DMesh(pts, None, None, cfg.probability_config())
+        n = cfg.refine_seeds[epoch - 1]
+        keep = None if cfg.voronoi_per_seed is None else int(math.ceil(cfg.voronoi_per_seed * n))
+        samples = sample_surface(mesh, n, rng)
+        pos, reals = seeds_and_voronoi(samples, n, rng, min(cfg.domain, box), keep, box)
+        return DMesh(np.clip(pos, -box, box), np.ones(len(pos)), reals, cfg.probability_config())
+
+    epoch, phase, start = 0, 1, 0
+    dm = init_points(0, None)
+    opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(0))
+    resumed = _load_state(state_path, fingerprint)
+    if resumed is not None:
+        epoch, phase, start = resumed["epoch"], resumed["phase"], resumed["step"]
+        dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
+        train = ("points", "weights", "reals") if phase == 1 else ("reals",)
+        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch), train)
+        if resumed.get("optimizer") is not None:
+            opt.load_state_dict(resumed["optimizer"])
+        rng.bit_generator.state = resumed["rng"]
+        history, info["epochs"] = list(resumed["history"]), list(resumed["epochs"])
+        timings.update(resumed["timings"])
+        info["resumed_from"] = {"epoch": epoch, "phase": phase, "step": start}
+        log.info("resuming from epoch %d phase %d step %d", epoch, phase, start)
+
+    def save(next_epoch: int, next_phase: int, next_step: int) -> None:
+        if state_path is None:
+            return
+        _save_state(state_path, {
+            "fingerprint": fingerprint, "epoch": next_epoch, "phase": next_phase, "step": next_step,
+            "points": dm.points.detach().clone(), "weights": dm.weights.detach().clone(),
+            "reals": dm.reals.detach().clone(), "optimizer": opt.state_dict() if next_step > 0 else None,
+            "rng": rng.bit_generator.state, "history": history, "epochs": info["epochs"],
+            "timings": dict(timings)})
+
+    def pick_views() -> np.ndarray:
+        return np.sort(rng.choice(n_views, batch, replace=False)) if batch < n_views else np.arange(n_views)
+
+    pd = None
+    while epoch < cfg.epochs:
+        tag = f"epoch{epoch}_"
+        # ------------------------------------------------------------------------------------- phase 1
+        if phase == 1:
+            notify({"stage": tag + "phase1"})
+            steps = cfg.steps_phase1[epoch]
+            for step in range(start, steps):
+                t0 = time.perf_counter()
+                stage_t: dict = {}
+                fp = dm.face_probabilities(timings=stage_t)
+                clock.add(stage_t, "phase1_")
+                pd = fp.power_diagram
+                ids = pick_views()
+                with clock("phase1_render"):
+                    with torch.no_grad():
+                        rmax = dm.reals[fp.faces].max(1).values
+                        drawn = torch.nonzero(fp.prob_wdt.detach() * rmax > cfg.alpha_thresh).squeeze(1)
+                    out = soft_render_views(dm.points, fp.faces[drawn], fp.prob[drawn].float(),
+                                            [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0,
+                                            num_threads=cfg.render_threads)
+                    loss_img = image_loss(out, torch.from_numpy(ids))
+                with clock("phase1_regularizers"):
+                    loss = loss_img
+                    if cfg.lambda_weight > 0:
+                        loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd)
+                    coef = ramp(step, cfg.lambda_real_start, cfg.lambda_real_end, cfg.real_ramp_steps)
+                    if coef > 0:
+                        loss = loss + coef * real_regularizer(dm.reals, fp.faces, fp.prob_wdt)
+                    if cfg.lambda_quality > 0:
+                        loss = loss + cfg.lambda_quality * quality_regularizer(dm.points, fp.faces, fp.prob,
+                                                                                min_prob=1e-4)
+                with clock("phase1_backward"):
+                    opt.zero_grad()
+                    if loss.requires_grad:
+                        loss.backward()
+                with clock("phase1_step"):
+                    opt.step()
+                    with torch.no_grad():
+                        dm.points.clamp_(-box, box)
+                hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
+                rec = {"epoch": epoch, "phase": 1, "step": step, "steps": steps, "loss": float(loss.detach()),
+                       "image": float(loss_img.detach()), "faces": int(hard.sum()), "drawn": int(len(drawn)),
+                       "candidates": int(len(fp.faces)), "points": len(dm), "seconds": time.perf_counter() - t0}
+                history.append(rec)
+                notify(rec)
+                if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < steps:
+                    save(epoch, 1, step + 1)
+            phase, start = 2, 0
+            opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch), train=("reals",))
+            save(epoch, 2, 0)
+
+        # ------------------------------------------------------------------------------------- phase 2
+        notify({"stage": tag + "phase2"})
+        steps = cfg.steps_phase2[epoch]
+        with clock("phase2_wdt"):
+            pd = dm.power_diagram()
+            faces = torch.from_numpy(pd.faces.astype(np.int64))
+            ones = torch.ones(len(faces), dtype=torch.float64)
+            verts = dm.points.detach()
+        for step in range(start, steps):
+            t0 = time.perf_counter()
+            if step in cfg.freeze_phase2:
+                hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
+                opt.freeze(torch.from_numpy(_points_of(pd.faces[hard], len(dm))))
+            ids = pick_views()
+            with clock("phase2_render"):
+                opacity = dmin(dm.reals[faces].double(), cfg.alpha_real).float()
+                out = tet_render_views(verts, pd.tets, pd.faces, pd.face_tets, opacity, [cameras[i] for i in ids],
+                                       num_threads=cfg.render_threads)
+                loss_img = image_loss(out, torch.from_numpy(ids))
+                loss = loss_img
+                if cfg.lambda_real_end > 0:
+                    loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
+            with clock("phase2_backward"):
+                opt.zero_grad()
+                if loss.requires_grad:
+                    loss.backward()
+                opt.step()
+            hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
+            rec = {"epoch": epoch, "phase": 2, "step": step, "steps": steps, "loss": float(loss.detach()),
+                   "image": float(loss_img.detach()), "faces": int(hard.sum()), "drawn": int(len(faces)),
+                   "candidates": int(len(faces)), "points": len(dm), "seconds": time.perf_counter() - t0}
+            history.append(rec)
+            notify(rec)
+            if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < steps:
+                save(epoch, 2, step + 1)
+
+        # ------------------------------------------------------------------------------ end of the epoch
+        with clock("extract"):
+            # Between epochs the visibility test runs at the optimised resolution (cheaper).
+            mesh, removed = extract(dm, cfg.threshold, pd, cfg.interior, cameras)
+        info["epochs"].append({"epoch": epoch, "points": len(dm), "faces": int(len(mesh.faces)),
+                               "interior_removed": removed})
+        notify({"stage": tag + "end", "epoch": epoch, "faces": int(len(mesh.faces)),
+                "vertices": np.asarray(mesh.vertices) / scale + center, "triangles": np.asarray(mesh.faces)})
+        epoch, phase, start = epoch + 1, 1, 0
+        if epoch < cfg.epochs:
+            with clock("init"):
+                if len(mesh.faces) == 0:
+                    log.warning("epoch %d ended with an empty mesh; epoch %d restarts from the grid", epoch - 1,
+                                epoch)
+                dm = init_points(epoch, mesh if len(mesh.faces) else None)
+                opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch))
+                pd = None
+        save(epoch, 1, 0)
+
+    # ----------------------------------------------------------------------------------------- extraction
+    notify({"stage": "extract"})
+    with clock("extract"):
+        pd = pd if pd is not None else dm.power_diagram()
+        full = None
+        if cfg.interior in ("visible", "both"):
+            full = Camera.from_views(w2c, vw.fov_y_degrees, h)
+        mesh, removed = extract(dm, cfg.threshold, pd, cfg.interior, full)
+    if cfg.orient:
+        with clock("orient"):
+            orient_faces(mesh)
+    mesh.vertices = np.asarray(mesh.vertices) / scale + center
+    for key, now in (("total", time.perf_counter() - t_start), ("total_cpu", time.process_time() - cpu_start)):
+        timings[key] = now if resumed is None else timings.get(key, 0.0) + now
+    info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)), "points": len(dm),
+                 "interior_removed": removed, "hidden_points": int(pd.hidden.sum())})
+    return MultiViewResult(mesh, dm, center, scale, timings, history, info)
+
+
+__all__ = ["MultiViewConfig", "MultiViewResult", "PRESETS", "reconstruct", "check_views", "downsample",
+           "extract", "interior_faces", "visible_faces", "sample_surface"]
