@@ -34,7 +34,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    "apex" drops a face when both of its tets have a real apex, upstream's `remove_invisible`; "visible"
    keeps only faces that are the first hit of some pixel ray of some view at the capture's resolution;
    "both" applies both; "none" neither), oriented consistently, mapped back to the input frame. The same
-   extraction (visibility at the optimised resolution) gives the mesh each re-seed samples.
+   extraction (visibility at the optimised resolution) gives the mesh each re-seed samples. With
+   `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
+   loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
 
 A run can be resumed from `state_path` (written atomically every `save_every` steps and at each phase end):
 the same input and config continue identically, except that the phase's candidate set and neighbour cache
@@ -109,7 +111,6 @@ class MultiViewConfig:
     freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
     alpha_thresh: float = 1e-3       # faces with Lambda_wdt x max(r) at or below it are not drawn
     edge_width: float = 1.0          # soft renderer: width of the soft band outside each triangle (pixels)
-    render_threads: int | None = None  # renderer threads (None: torch's); 1 makes runs bit-for-bit repeatable
     alpha_wdt: float = 1000.0        # sigmoid sharpness of Lambda_wdt
     alpha_real: float = 100.0        # softmin sharpness of Lambda_real
     knn_interval: int = 10           # kNN candidate triples every this many steps
@@ -117,6 +118,7 @@ class MultiViewConfig:
     active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
     threshold: float = 0.5           # real value above which a point is on the final mesh
     interior: str = "apex"           # interior-face removal: "apex", "visible", "both" or "none"
+    select_best: bool = False        # return the epoch whose mesh renders closest to all the images
     orient: bool = True              # orient the output faces consistently per component
     save_every: int = 50             # steps between resumable state saves (with a state path)
     seed: int = 0                    # seed of every random choice
@@ -150,8 +152,6 @@ class MultiViewConfig:
                 raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.voronoi_per_seed is not None and not self.voronoi_per_seed >= 0:
             raise ValueError(f"MultiViewConfig.voronoi_per_seed must be >= 0 or None, got {self.voronoi_per_seed}")
-        if self.render_threads is not None and int(self.render_threads) < 1:
-            raise ValueError(f"MultiViewConfig.render_threads must be >= 1 or None, got {self.render_threads}")
         if self.resolution is not None and int(self.resolution) < 4:
             raise ValueError(f"MultiViewConfig.resolution must be >= 4 or None, got {self.resolution}")
         if self.interior not in INTERIOR_MODES:
@@ -388,24 +388,55 @@ def interior_faces(pd, real: np.ndarray) -> np.ndarray:
     return out
 
 
-def visible_faces(points: np.ndarray, pd, keep: np.ndarray, cameras) -> np.ndarray:
-    """(F,) bool over `pd.faces`: faces of `keep` ((F,) bool) that are the first hit of some pixel ray.
+def hard_render(points: np.ndarray, pd, keep: np.ndarray, cameras):
+    """Renders the faces of `keep` ((F,) bool over `pd.faces`) opaque, all others transparent, with the
+    tetrahedral walk (exact depth order).
 
-    Renders the faces of `keep` opaque (all others transparent) with the tetrahedral walk; a pixel's
-    compositing stops at its first opaque face, so its fragment list holds exactly that face.
+    A pixel's compositing stops at its first opaque face, so its fragment list holds exactly that face.
+
+    Returns:
+        seen: (F,) bool, faces of `keep` that are the first hit of some pixel ray of some camera;
+        diffuse, depth, alpha: (V, R, R) float32 images (as `dmesh.render.tet_render`).
     """
     from dmesh import native
 
     opacity = keep.astype(np.float32)
     seen = np.zeros(len(pd.faces), bool)
-    if not keep.any():
-        return seen
     threads = max(1, torch.get_num_threads())
+    images = []
     for cam in cameras:
         raw = native.tet_render_forward(points, pd.tets, pd.faces, pd.face_tets, opacity, cam.world_to_camera,
                                         cam.fov_y, cam.height, cam.width, cam.near, 0.5, 1e-4, threads)
         seen[np.asarray(raw.frag_face, dtype=np.int64)] = True
-    return seen & keep
+        images.append((raw.diffuse, raw.depth, raw.alpha))
+    diffuse, depth, alpha = (np.stack(x) for x in zip(*images))
+    return seen & keep, diffuse, depth, alpha
+
+
+def visible_faces(points: np.ndarray, pd, keep: np.ndarray, cameras) -> np.ndarray:
+    """(F,) bool over `pd.faces`: faces of `keep` ((F,) bool) that are the first hit of some pixel ray of
+    some camera (see `hard_render`)."""
+    if not keep.any():
+        return np.zeros(len(pd.faces), bool)
+    return hard_render(points, pd, keep, cameras)[0]
+
+
+def _mesh_faces(dm, threshold: float, pd, interior: str, cameras, render: bool = False):
+    """(F,) bool over `pd.faces` of the extracted mesh, the count removed as interior, and (with `render`,
+    or when the visibility test ran) the hard render's (diffuse, depth, alpha) from `cameras`, else None."""
+    real = dm.reals.detach().numpy() > threshold
+    keep = _hard_mask(dm.reals, pd.faces, threshold)
+    before = int(keep.sum())
+    if interior in ("apex", "both"):
+        keep &= ~interior_faces(pd, real)
+    images = None
+    if interior in ("visible", "both") or render:
+        if cameras is None:
+            raise ValueError("the visibility test and the hard render need the cameras")
+        seen, *images = hard_render(dm.points.detach().numpy(), pd, keep, cameras)
+        if interior in ("visible", "both"):
+            keep = seen
+    return keep, before - int(keep.sum()), images
 
 
 def extract(dm, threshold: float = 0.5, pd=None, interior: str = "apex", cameras=None):
@@ -418,21 +449,17 @@ def extract(dm, threshold: float = 0.5, pd=None, interior: str = "apex", cameras
     Returns:
         (trimesh.Trimesh, number of faces removed as interior).
     """
+    pd = pd if pd is not None else dm.power_diagram()
+    keep, removed, _ = _mesh_faces(dm, threshold, pd, interior, cameras)
+    return _as_trimesh(dm, pd, keep), removed
+
+
+def _as_trimesh(dm, pd, keep: np.ndarray):
     import trimesh
 
-    pd = pd if pd is not None else dm.power_diagram()
-    real = dm.reals.detach().numpy() > threshold
-    keep = _hard_mask(dm.reals, pd.faces, threshold)
-    before = int(keep.sum())
-    if interior in ("apex", "both"):
-        keep &= ~interior_faces(pd, real)
-    if interior in ("visible", "both"):
-        if cameras is None:
-            raise ValueError("interior='visible' needs the cameras")
-        keep = visible_faces(dm.points.detach().numpy(), pd, keep, cameras)
     mesh = trimesh.Trimesh(dm.points.detach().double().numpy(), pd.faces[keep].astype(np.int64), process=False)
     mesh.remove_unreferenced_vertices()
-    return mesh, before - int(keep.sum())
+    return mesh
 
 
 # ------------------------------------------------------------------------------------------------- procedure
@@ -452,6 +479,11 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         `MultiViewResult`.
     Raises:
         ValueError: bad views (none, mismatched shapes, NaN, empty masks, cameras too close) or config.
+
+    Every random choice (views per step, surface samples, seeds) comes from `config.seed`. Runs repeat bit
+    for bit on one thread (`torch.set_num_threads(1)`); on more, parallel gradient sums (the renderers'
+    per-thread buffers, torch's scatter-adds) change their order between runs, the rounding differs and
+    the runs drift apart (measured: two 2-thread tiny runs give different meshes).
     """
     from dmesh.render import Camera, soft_render_views, tet_render_views
     from dmesh.representation import DMesh
@@ -516,6 +548,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         return DMesh(np.clip(pos, -box, box), np.ones(len(pos)), reals, cfg.probability_config())
 
     epoch, phase, start = 0, 1, 0
+    best = None  # the epoch whose mesh renders closest to the images ("select_best")
     dm = init_points(0, None)
     opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(0))
     resumed = _load_state(state_path, fingerprint)
@@ -527,7 +560,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         if resumed.get("optimizer") is not None:
             opt.load_state_dict(resumed["optimizer"])
         rng.bit_generator.state = resumed["rng"]
-        history, info["epochs"] = list(resumed["history"]), list(resumed["epochs"])
+        history, info["epochs"], best = list(resumed["history"]), list(resumed["epochs"]), resumed["best"]
         timings.update(resumed["timings"])
         info["resumed_from"] = {"epoch": epoch, "phase": phase, "step": start}
         log.info("resuming from epoch %d phase %d step %d", epoch, phase, start)
@@ -539,7 +572,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
             "fingerprint": fingerprint, "epoch": next_epoch, "phase": next_phase, "step": next_step,
             "points": dm.points.detach().clone(), "weights": dm.weights.detach().clone(),
             "reals": dm.reals.detach().clone(), "optimizer": opt.state_dict() if next_step > 0 else None,
-            "rng": rng.bit_generator.state, "history": history, "epochs": info["epochs"],
+            "rng": rng.bit_generator.state, "history": history, "epochs": info["epochs"], "best": best,
             "timings": dict(timings)})
 
     def pick_views() -> np.ndarray:
@@ -564,8 +597,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
                         rmax = dm.reals[fp.faces].max(1).values
                         drawn = torch.nonzero(fp.prob_wdt.detach() * rmax > cfg.alpha_thresh).squeeze(1)
                     out = soft_render_views(dm.points, fp.faces[drawn], fp.prob[drawn].float(),
-                                            [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0,
-                                            num_threads=cfg.render_threads)
+                                            [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0)
                     loss_img = image_loss(out, torch.from_numpy(ids))
                 with clock("phase1_regularizers"):
                     loss = loss_img
@@ -613,8 +645,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
             ids = pick_views()
             with clock("phase2_render"):
                 opacity = dmin(dm.reals[faces].double(), cfg.alpha_real).float()
-                out = tet_render_views(verts, pd.tets, pd.faces, pd.face_tets, opacity, [cameras[i] for i in ids],
-                                       num_threads=cfg.render_threads)
+                out = tet_render_views(verts, pd.tets, pd.faces, pd.face_tets, opacity, [cameras[i] for i in ids])
                 loss_img = image_loss(out, torch.from_numpy(ids))
                 loss = loss_img
                 if cfg.lambda_real_end > 0:
@@ -635,12 +666,20 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
         # ------------------------------------------------------------------------------ end of the epoch
         with clock("extract"):
-            # Between epochs the visibility test runs at the optimised resolution (cheaper).
-            mesh, removed = extract(dm, cfg.threshold, pd, cfg.interior, cameras)
-        info["epochs"].append({"epoch": epoch, "points": len(dm), "faces": int(len(mesh.faces)),
-                               "interior_removed": removed})
-        notify({"stage": tag + "end", "epoch": epoch, "faces": int(len(mesh.faces)),
-                "vertices": np.asarray(mesh.vertices) / scale + center, "triangles": np.asarray(mesh.faces)})
+            # Between epochs the visibility test and the hard render run at the optimised resolution.
+            keep, removed, images = _mesh_faces(dm, cfg.threshold, pd, cfg.interior, cameras, cfg.select_best)
+            mesh = _as_trimesh(dm, pd, keep)
+            record = {"epoch": epoch, "points": len(dm), "faces": int(len(mesh.faces)), "interior_removed": removed}
+            if images is not None:
+                with torch.no_grad():
+                    out = dict(zip(("diffuse", "depth", "alpha"), (torch.from_numpy(x) for x in images)))
+                    record["eval_loss"] = float(image_loss(out, torch.arange(n_views)))
+                if best is None or record["eval_loss"] < best["eval_loss"]:
+                    best = {"epoch": epoch, "eval_loss": record["eval_loss"], "points": dm.points.detach().clone(),
+                            "weights": dm.weights.detach().clone(), "reals": dm.reals.detach().clone()}
+        info["epochs"].append(record)
+        notify({"stage": tag + "end", **record, "vertices": np.asarray(mesh.vertices) / scale + center,
+                "triangles": np.asarray(mesh.faces)})
         epoch, phase, start = epoch + 1, 1, 0
         if epoch < cfg.epochs:
             with clock("init"):
@@ -655,6 +694,11 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
     # ----------------------------------------------------------------------------------------- extraction
     notify({"stage": "extract"})
     with clock("extract"):
+        if best is not None and best["epoch"] != cfg.epochs - 1:
+            dm = DMesh(best["points"], best["weights"], best["reals"], cfg.probability_config())
+            pd = None
+        if best is not None:
+            info["selected_epoch"] = best["epoch"]
         pd = pd if pd is not None else dm.power_diagram()
         full = None
         if cfg.interior in ("visible", "both"):
