@@ -173,6 +173,11 @@ def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, see
         try:
             views.save(tmp)
             os.replace(tmp, path)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if not path.exists():
+                raise
+            # Another process sharing the work folder finished the same capture first: use its copy.
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -179,8 +179,9 @@ def _p2s(mesh, gt):
 
 
 # Measured with the tiny preset (seed 0, 16 views at 96 pixels, one thread, metrics from 20K samples): sphere
-# cd_p2s 0.149; the limit is 1.5x that.
-TINY_LIMIT = 0.224
+# cd_p2s 0.1455 (the epoch-0 mesh, selected by its image loss 0.185 against epoch 1's 0.192; a 48-pixel
+# image is 0.05 wide per pixel at the object); the limit is 1.5x that.
+TINY_LIMIT = 0.218
 
 
 @pytest.fixture
@@ -205,6 +206,8 @@ def test_tiny_reconstruction(sphere, sphere_views, tmp_path, one_thread):
     stages = {r["stage"] for r in seen if "stage" in r}
     assert {"init", "epoch0_phase1", "epoch0_phase2", "epoch1_phase1", "epoch1_end", "extract"} <= stages
     assert len(res.info["epochs"]) == cfg.epochs and res.timings["total"] > 0
+    losses = [e["eval_loss"] for e in res.info["epochs"]]
+    assert res.info["selected_epoch"] == int(np.argmin(losses))
     # Same seed, same mesh (bit for bit); the finished state resumes straight to extraction.
     again = reconstruct(sphere_views, cfg)
     assert np.array_equal(again.mesh.faces, res.mesh.faces)

@@ -350,3 +350,25 @@ def test_compare_unreadable_mesh_is_one_line_error(tmp_path, capsys):
     err = _main_one_line_exit_2(capsys, "compare", str(bad), "--methods", "no_such_method", "-o", str(out))
     assert "unknown method" in err
     assert not out.exists()
+
+
+def test_prepare_input_tolerates_a_concurrent_capture(tmp_path, monkeypatch):
+    """Two processes sharing a work folder may capture the same views; the one that finishes second keeps
+    the first one's folder instead of failing (os.replace cannot replace a non-empty folder)."""
+    import datasets.capture as capture_mod
+    from eval.runner import input_path, prepare_gt, prepare_input
+
+    shape, gt_path = prepare_gt(resolve_shape("torus"), tmp_path)
+    settings = {"views": 2, "resolution": 16, "distance": 2.0, "radius": 1.0}
+    dest = input_path(tmp_path, shape, "multiview", settings, 0)
+
+    class RacingViews:
+        def save(self, folder):
+            (Path(folder) / "mine.txt").write_text("second")
+            dest.mkdir()  # the other process wins the race while this one is saving
+            (dest / "theirs.txt").write_text("first")
+
+    monkeypatch.setattr(capture_mod, "capture", lambda *a, **k: RacingViews())
+    assert prepare_input(shape, gt_path, "multiview", settings, 0, tmp_path) == dest
+    assert sorted(p.name for p in dest.iterdir()) == ["theirs.txt"]
+    assert [p.name for p in dest.parent.iterdir() if p.name.startswith(".")] == []
