@@ -27,7 +27,7 @@ headlight, albedo 1), depth = -z_cam of the surface, alpha = coverage; backgroun
 
 The native kernels are in `native/src/soft_render.h` and `native/src/tet_render.h`; the naive reference
 (the same model, per pixel in torch) is `dmesh.reference.render`. Both renderers work on one view per
-call with `num_threads` native threads; the soft renderer keeps its largest work arrays (about 250 bytes
+call with `num_threads` native threads; the soft renderer keeps its largest work arrays (about 350 bytes
 per face for the forward, 500 for the backward) per calling thread between calls, to avoid page faults.
 """
 from __future__ import annotations

@@ -193,6 +193,47 @@ def test_layered_gradients_match_finite_differences():
     assert_close(ot.grad, fd_o, atol=1e-3, rtol=1e-3, what="opacity grads vs FD")
 
 
+def _bitwise_scenes(rng):
+    """Two scenes for the thread-count test. "soup": intersecting random triangles over the image. "layers":
+    20 parallel semi-transparent triangles covering the whole view, seen head-on, with a diffuse loss weight
+    that is odd under the image's vertical flip, so every opacity gradient is a sum of terms that cancel
+    in pairs: its value (~1e-16) is pure rounding and shows any change in the order of summation (the old
+    per-thread accumulation gave a different value in most 2-thread runs)."""
+    res = 64
+    centres = rng.uniform(-0.6, 0.6, (600, 1, 3))
+    soup = (centres + rng.uniform(-0.15, 0.15, (600, 3, 3))).reshape(-1, 3)
+    g_soup = _loss_weights(rng, res)
+    tri = np.array([[-20.0, -10.0, 0.0], [20.0, -10.0, 0.0], [0.0, 30.0, 0.0]])
+    layers = np.concatenate([tri + [0.0, 0.0, -0.05 * k] for k in range(20)])
+    top = rng.standard_normal((res // 2, res))
+    odd = torch.tensor(np.vstack([top, -top[::-1]]), dtype=torch.float32)
+    zero = torch.zeros(res, res)
+    return [("soup", soup, rng.uniform(0.2, 0.9, 600), _camera(res), g_soup),
+            ("layers", layers, np.full(20, 0.3), Camera(look_at((0.0, 0.0, 2.0)), height=res, width=res),
+             [odd, zero, zero])]
+
+
+@pytest.mark.parametrize("scene", ["soup", "layers"])
+def test_soft_bitwise_identical_across_thread_counts(scene):
+    """Forward images and gradients do not depend on the native thread count or schedule (bit for bit):
+    each pixel is composited by one thread and the backward adds its row blocks' sums in a fixed order."""
+    name, v, o, cam, g = next(s for s in _bitwise_scenes(np.random.default_rng(21)) if s[0] == scene)
+    f = torch.arange(len(v)).reshape(-1, 3)
+
+    def run(num_threads):
+        vt = torch.tensor(v, dtype=torch.float32, requires_grad=True)
+        ot = torch.tensor(o, dtype=torch.float32, requires_grad=True)
+        out = soft_render(vt, f, ot, cam, num_threads=num_threads)
+        _weighted(out, g).backward()
+        return [out[k].detach() for k in OUTPUTS] + [vt.grad, ot.grad]
+
+    one = run(1)
+    assert float(one[2].mean()) > 0.25 and one[4].abs().max() > 0  # busy scenes with gradients
+    for nt in (2, 2, 3):
+        for what, a, b in zip([*OUTPUTS, "grad verts", "grad opacity"], run(nt), one):
+            assert torch.equal(a, b), f"{name}: {what} differs between 1 and {nt} threads"
+
+
 # --------------------------------------------------------------------------------------------------------
 # Soft renderer versus the ground-truth capture
 # --------------------------------------------------------------------------------------------------------

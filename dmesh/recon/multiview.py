@@ -22,7 +22,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    (`DMesh.face_probabilities`); faces with Lambda_wdt * max(r) > `alpha_thresh` are drawn by the soft
    renderer (`dmesh.render.soft_render`) with opacity Lambda, over `views_per_step` random views; loss = L1
    of the diffuse images + `lambda_depth` x L1 of the depth channel (`depth_channel`: nearer is larger,
-   background 0, like upstream's) over whole images (background included, as upstream) + the weight,
+   background 0, like upstream's) over whole images (background included, as upstream; the targets carry
+   the soft renderer's silhouette band, `soft_band_targets`, so the fit is unbiased) + the weight,
    real (ramped) and quality regularisers; positions, weights and reals
    move by `BoundedAdam`. Upstream adds 0.1 x the L1 of a hard nvdiffrast render for silhouette gradients;
    our soft renderer has silhouette gradients itself (analytic coverage), so there is no hard term.
@@ -90,6 +91,8 @@ class MultiViewConfig:
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
     voronoi_per_seed: float | None = None  # re-seeds keep <= this many Voronoi vertices per seed (None: all)
+    voronoi: str = "all"            # re-seeds' imaginary points: "all" Voronoi vertices or the seeds' "poles"
+    even_seeds: bool = False         # re-seeds spread evenly (farthest-point) instead of at random
     domain: float = 1.0              # Voronoi vertices outside [-domain, domain]^3 are dropped
     box: float = 1.25                # points stay in [-b, b]^3, b = min(box, 0.98 x the cameras' box)
     steps_phase1: tuple = (500, 500, 500, 500)  # per epoch: steps with the soft renderer
@@ -111,6 +114,7 @@ class MultiViewConfig:
     freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
     alpha_thresh: float = 1e-3       # faces with Lambda_wdt x max(r) at or below it are not drawn
     edge_width: float = 1.0          # soft renderer: width of the soft band outside each triangle (pixels)
+    band_targets: bool = True        # phase-1 targets get the soft renderer's silhouette band (unbiased fit)
     alpha_wdt: float = 1000.0        # sigmoid sharpness of Lambda_wdt
     alpha_real: float = 100.0        # softmin sharpness of Lambda_real
     knn_interval: int = 10           # kNN candidate triples every this many steps
@@ -154,6 +158,8 @@ class MultiViewConfig:
             raise ValueError(f"MultiViewConfig.voronoi_per_seed must be >= 0 or None, got {self.voronoi_per_seed}")
         if self.resolution is not None and int(self.resolution) < 4:
             raise ValueError(f"MultiViewConfig.resolution must be >= 4 or None, got {self.resolution}")
+        if self.voronoi not in ("all", "poles"):
+            raise ValueError(f"MultiViewConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
         if self.interior not in INTERIOR_MODES:
             raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
         if not 0.0 <= self.threshold < 1.0:
@@ -361,6 +367,44 @@ def downsample(images: np.ndarray, size: int) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------- helpers
 
+def soft_band_targets(channels: list[np.ndarray], mask: np.ndarray, size: int, edge_width: float) -> list[np.ndarray]:
+    """Targets for the soft renderer: each capture channel with the renderer's silhouette band added, then
+    area-averaged to (V, size, size) float32.
+
+    The soft renderer draws every triangle fully inside and with a coverage band of `edge_width` pixels
+    (smoothstep of the distance) outside, so a rendered silhouette lies about edge_width / 2 pixels outside
+    the true one; the capture's is exact (one sample at each pixel centre). Fitting the one to the other
+    would shrink the surface by that much: measured on the torus at 128 pixels, the image loss of the GT
+    mesh offset along its normals is lowest at -0.01 (half a pixel) with the plain targets. So the targets
+    get the same band: a background pixel at distance d (optimised pixels) from the object's edge takes
+    the value of its nearest object pixel times smoothstep(1 - d / edge_width), computed at the capture's
+    resolution (distance transform) before the area average. Inner depth edges (self-occlusion) keep the
+    plain targets.
+
+    Args:
+        channels: (V, H, H) arrays, 0 on the background; mask: (V, H, H) bool; size: optimised side;
+        edge_width: the soft renderer's band width in optimised pixels.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    h = mask.shape[1]
+    step = size / h  # one capture pixel in optimised pixels
+    out = [np.array(c, dtype=np.float64) for c in channels]
+    for k in range(len(mask)):
+        if not mask[k].any() or mask[k].all():
+            continue
+        dist, (ii, jj) = distance_transform_edt(~mask[k], sampling=step, return_indices=True)
+        # Pixel centres are one capture pixel apart; the edge lies about half a pixel before the object's.
+        d = np.clip(dist - 0.5 * step, 0.0, None) / edge_width
+        band = ~mask[k] & (d < 1.0)
+        s = 1.0 - d[band]
+        a = s * s * (3.0 - 2.0 * s)
+        for c in out:
+            c[k][band] = a * c[k][ii[band], jj[band]]
+    return [downsample(c, size) for c in out]
+
+
+
 def depth_channel(depth: torch.Tensor, alpha: torch.Tensor, far: torch.Tensor) -> torch.Tensor:
     """The depth the loss compares: (far - z) / DEPTH_SPAN per fragment, composited, 0 on background.
 
@@ -396,6 +440,26 @@ def sample_surface(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
     u[fold], w[fold] = 1.0 - u[fold], 1.0 - w[fold]
     t = tri[pick]
     return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0])
+
+
+def even_samples(mesh, n: int, rng: np.random.Generator, oversample: int = 8) -> np.ndarray:
+    """(n, 3) float64 points spread evenly over a mesh: farthest-point selection from `oversample` x n
+    area-uniform samples, starting at a random one.
+
+    Written here because no core dependency has it (open3d's is harness-only); n iterations of an O(n)
+    update, about a second for n = 10^4. Even seeds give the re-seeded mesh rounder triangles than random
+    ones, whose clusters and gaps leave slivers and folds.
+    """
+    dense = sample_surface(mesh, oversample * n, rng)
+    if len(dense) <= n:
+        return dense
+    chosen = np.empty(n, dtype=np.int64)
+    chosen[0] = rng.integers(len(dense))
+    dist = np.sum((dense - dense[chosen[0]]) ** 2, axis=1)
+    for k in range(1, n):
+        chosen[k] = int(np.argmax(dist))
+        np.minimum(dist, np.sum((dense - dense[chosen[k]]) ** 2, axis=1), out=dist)
+    return dense[chosen]
 
 
 def interior_faces(pd, real: np.ndarray) -> np.ndarray:
@@ -508,9 +572,9 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         ValueError: bad views (none, mismatched shapes, NaN, empty masks, cameras too close) or config.
 
     Every random choice (views per step, surface samples, seeds) comes from `config.seed`. Runs repeat bit
-    for bit on one thread (`torch.set_num_threads(1)`); on more, parallel gradient sums (the renderers'
-    per-thread buffers, torch's scatter-adds) change their order between runs, the rounding differs and
-    the runs drift apart (measured: two 2-thread tiny runs give different meshes).
+    for bit on one thread (`torch.set_num_threads(1)`); on more, torch's parallel scatter-adds change their
+    order between runs (the renderers are deterministic on any thread count), the rounding differs and the
+    runs drift apart (measured: two 2-thread tiny runs give different meshes).
     """
     from dmesh.render import Camera, soft_render_views, tet_render_views
     from dmesh.representation import DMesh
@@ -546,9 +610,14 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         res = h if cfg.resolution is None else min(int(cfg.resolution), h)
         # Depth channel: (far - z) / 2 where covered, 0 on background (see `depth_channel`).
         far = np.linalg.norm(eyes, axis=1) + math.sqrt(3.0) * box
-        target_d = torch.from_numpy(downsample(vw.diffuse, res))
         lifted = (far[:, None, None] * vw.mask - vw.depth.astype(np.float64) * scale) / DEPTH_SPAN
-        target_z = torch.from_numpy(downsample(lifted, res))
+        # Exact targets for the tetrahedral renderer and the hard render (one sample per pixel centre) ...
+        exact = (torch.from_numpy(downsample(vw.diffuse, res)), torch.from_numpy(downsample(lifted, res)))
+        # ... and targets with the soft renderer's silhouette band for phase 1 (see `soft_band_targets`).
+        soft = exact
+        if cfg.band_targets:
+            soft = tuple(torch.from_numpy(x) for x in
+                         soft_band_targets([vw.diffuse, lifted], vw.mask, res, cfg.edge_width))
         far = torch.from_numpy(far.astype(np.float32))
         cameras = Camera.from_views(w2c, vw.fov_y_degrees, res)
         fingerprint = _fingerprint(np.concatenate([vw.diffuse.ravel(), vw.depth.ravel(),
@@ -559,7 +628,8 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
                   "box": box, "fingerprint": fingerprint, "epochs": []}
     history: list = []
 
-    def image_loss(out, ids) -> torch.Tensor:
+    def image_loss(out, ids, targets=exact) -> torch.Tensor:
+        target_d, target_z = targets
         loss = (out["diffuse"] - target_d[ids]).abs().mean()
         if cfg.lambda_depth > 0:
             z = depth_channel(out["depth"], out["alpha"], far[ids])
@@ -572,8 +642,8 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
             return DMesh(pts, None, None, cfg.probability_config())
         n = cfg.refine_seeds[epoch - 1]
         keep = None if cfg.voronoi_per_seed is None else int(math.ceil(cfg.voronoi_per_seed * n))
-        samples = sample_surface(mesh, n, rng)
-        pos, reals = seeds_and_voronoi(samples, n, rng, min(cfg.domain, box), keep, box)
+        samples = even_samples(mesh, n, rng) if cfg.even_seeds else sample_surface(mesh, n, rng)
+        pos, reals = seeds_and_voronoi(samples, n, rng, min(cfg.domain, box), keep, box, vertices=cfg.voronoi)
         return DMesh(np.clip(pos, -box, box), np.ones(len(pos)), reals, cfg.probability_config())
 
     epoch, phase, start = 0, 1, 0
@@ -627,7 +697,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
                         drawn = torch.nonzero(fp.prob_wdt.detach() * rmax > cfg.alpha_thresh).squeeze(1)
                     out = soft_render_views(dm.points, fp.faces[drawn], fp.prob[drawn].float(),
                                             [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0)
-                    loss_img = image_loss(out, torch.from_numpy(ids))
+                    loss_img = image_loss(out, torch.from_numpy(ids), soft)
                 with clock("phase1_regularizers"):
                     loss = loss_img
                     if cfg.lambda_weight > 0:

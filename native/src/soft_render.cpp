@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <cstring>
 #include <memory>
 #include <utility>
 #include <stdexcept>
@@ -80,6 +81,30 @@ struct BinEntry {  // what a tile keeps per listed face (16 bytes)
   float zmin;       // rounded down: a lower bound of the face's zmin
   index_t slot;     // face id: index into Prepared::faces
 };
+
+// A face's pixel span in one row, as bounds linear in the row's centre v (forward binning only): for
+// each edge e with |ea_e| >= kLinearEa, the pixels j (centre u = j + 0.5) where sd_e > -w satisfy
+// j > k_e v + m_e when ea_e > 0 (a lower bound) or j < k_e v + m_e when ea_e < 0 (an upper bound). Edges
+// nearer to horizontal are bounded from the Face's edge line per row, as a division would lose too much.
+// The bounds only pre-filter the pixels that get a coverage test, so a rounding error below a pixel
+// changes nothing (the row bucketing in soft_render_forward keeps a pixel of slack).
+constexpr double kLinearEa = 1e-3;
+// Loops that visit faces in depth order (random in memory) prefetch this many entries ahead.
+constexpr std::int64_t kAhead = 16;
+struct alignas(64) RowSpan {
+  double k[3], m[3];
+  std::int8_t kind[3];  // 0: lower bound, 1: upper bound, 2: per-row test from the Face's edge line
+};
+
+void setup_row_span(const Face& fc, double w, RowSpan& rs) {
+  for (int e = 0; e < 3; ++e) {
+    const double ea = fc.ea[e];
+    rs.kind[e] = ea >= kLinearEa ? 0 : ea <= -kLinearEa ? 1 : 2;
+    // sd_e + w at pixel j of row v: ea j + (eb v + ec + w + ea / 2), zero at j = -(eb v + ec + w + ea / 2) / ea
+    rs.k[e] = rs.kind[e] == 2 ? 0.0 : -fc.eb[e] / ea;
+    rs.m[e] = rs.kind[e] == 2 ? 0.0 : -(fc.ec[e] + w + 0.5 * ea) / ea;
+  }
+}
 
 struct RowEntry {  // a tile's faces whose box spans one pixel row
   std::int16_t x0, x1;
@@ -251,7 +276,7 @@ struct Frag {
 
 // Large per-call arrays are kept per calling thread and reused: fresh allocations of tens of MB come
 // from new pages each call, and the page faults cost as much as the setup itself. (Memory held: the
-// largest call's face and bin arrays, about 250 bytes per face.)
+// largest call's face and bin arrays, about 350 bytes per face.)
 template <class T>
 struct Reusable {
   std::unique_ptr<T[]> data;
@@ -266,13 +291,49 @@ struct Reusable {
 };
 thread_local Reusable<Face> tl_faces, tl_bwd_faces;
 thread_local Reusable<BinEntry> tl_bins, tl_box;
+thread_local Reusable<RowSpan> tl_span;
+thread_local Reusable<std::pair<double, index_t>> tl_order, tl_order_tmp;
 thread_local Reusable<Corners> tl_corners;
 thread_local Reusable<double> tl_acc, tl_gv;
+thread_local Reusable<index_t> tl_loc;
+
+// Sorts (zmin, id) pairs given in increasing id order by (zmin, id): a stable LSD radix sort on the bits
+// of zmin, which order like the values since every zmin is positive (>= near) and finite. Bytes that all
+// keys share are skipped. tmp: scratch of n pairs.
+void sort_by_depth(std::pair<double, index_t>* a, std::int64_t n, std::pair<double, index_t>* tmp) {
+  if (n < 2) return;
+  auto bits = [](const std::pair<double, index_t>& x) {
+    std::uint64_t b;
+    std::memcpy(&b, &x.first, sizeof b);
+    return b;
+  };
+  std::int64_t hist[8][256] = {};
+  for (std::int64_t k = 0; k < n; ++k) {
+    const std::uint64_t b = bits(a[k]);
+    for (int d = 0; d < 8; ++d) ++hist[d][(b >> (8 * d)) & 0xff];
+  }
+  std::pair<double, index_t>* src = a;
+  std::pair<double, index_t>* dst = tmp;
+  for (int d = 0; d < 8; ++d) {
+    std::int64_t* h = hist[d];
+    if (h[(bits(a[0]) >> (8 * d)) & 0xff] == n) continue;  // every key has this byte
+    std::int64_t sum = 0;
+    for (int v = 0; v < 256; ++v) {
+      const std::int64_t c = h[v];
+      h[v] = sum;
+      sum += c;
+    }
+    for (std::int64_t k = 0; k < n; ++k) dst[h[(bits(src[k]) >> (8 * d)) & 0xff]++] = src[k];
+    std::swap(src, dst);
+  }
+  if (src != a) std::copy(src, src + n, a);
+}
 
 struct Prepared {
   Face* faces = nullptr;            // (F,) by face id, valid where drawn
   std::vector<std::int64_t> tile_start;  // (tiles + 1,)
   BinEntry* bins = nullptr;         // per tile, sorted by (zmin, face id)
+  RowSpan* spans = nullptr;         // (F,) by face id, valid where drawn
   std::int64_t num_drawn = 0, num_bins = 0;
   index_t tiles_x = 0, tiles_y = 0;
 };
@@ -310,34 +371,34 @@ Prepared prepare(const View& view, const float* verts, const index_t* faces, ind
   // faces by (zmin, id), 3. bin them in that order, so that every tile's list is sorted.
   p.faces = tl_faces.get(size_t(std::max<index_t>(F, 1)));
   BinEntry* box = tl_box.get(size_t(std::max<index_t>(F, 1)));  // compact copy of each face's bin entry
-  std::vector<std::pair<double, index_t>> order(static_cast<size_t>(F));
+  p.spans = tl_span.get(size_t(std::max<index_t>(F, 1)));
+  std::pair<double, index_t>* order = tl_order.get(size_t(std::max<index_t>(F, 1)));
   const std::int64_t chunk = 8192;
-  parallel_for((std::int64_t(F) + chunk - 1) / chunk, threads, [&](std::int64_t c, int) {
+  const std::int64_t nchunks = (std::int64_t(F) + chunk - 1) / chunk;
+  std::vector<std::int64_t> chunk_drawn(size_t(nchunks) + 1, 0);
+  parallel_for(nchunks, threads, [&](std::int64_t c, int) {
     const std::int64_t end = std::min<std::int64_t>(F, (c + 1) * chunk);
+    std::int64_t drawn = 0;
     for (std::int64_t f = c * chunk; f < end; ++f) {
-      order[f] = {std::numeric_limits<double>::infinity(), kNone};
       if (!(double(opacity[f]) > s.min_opacity)) continue;
       Face& fc = p.faces[f];
       if (!setup_face(view, verts, faces + 3 * f, double(opacity[f]), s.edge_width, fc)) continue;
       fc.id = index_t(f);
+      setup_row_span(fc, s.edge_width, p.spans[f]);
       float zlo = float(fc.zmin);
       if (double(zlo) > fc.zmin) zlo = std::nextafter(zlo, -std::numeric_limits<float>::infinity());
       box[f] = BinEntry{std::int16_t(fc.x0), std::int16_t(fc.x1), std::int16_t(fc.y0), std::int16_t(fc.y1), zlo,
                         index_t(f)};
-      order[f] = {fc.zmin, index_t(f)};
+      order[c * chunk + drawn++] = {fc.zmin, index_t(f)};  // compacted within the chunk, in id order
     }
+    chunk_drawn[size_t(c) + 1] = drawn;
   });
-  order.erase(std::remove_if(order.begin(), order.end(),
-                             [](const std::pair<double, index_t>& a) { return a.second == kNone; }),
-              order.end());
-  if (threads > 1 && order.size() > 65536) {  // two halves in parallel, then merge
-    const auto mid = order.begin() + order.size() / 2;
-    parallel_for(2, 2, [&](std::int64_t h, int) { std::sort(h ? mid : order.begin(), h ? order.end() : mid); });
-    std::inplace_merge(order.begin(), mid, order.end());
-  } else {
-    std::sort(order.begin(), order.end());
+  std::int64_t D = 0;
+  for (std::int64_t c = 0; c < nchunks; ++c) {  // close the gaps between chunks, keeping id order
+    if (D != c * chunk) std::copy(order + c * chunk, order + c * chunk + chunk_drawn[size_t(c) + 1], order + D);
+    D += chunk_drawn[size_t(c) + 1];
   }
-  const std::int64_t D = std::int64_t(order.size());
+  sort_by_depth(order, D, tl_order_tmp.get(size_t(std::max<std::int64_t>(D, 1))));
 
   p.tiles_x = (view.W + kTile - 1) / kTile;
   p.tiles_y = (view.H + kTile - 1) / kTile;
@@ -345,6 +406,7 @@ Prepared prepare(const View& view, const float* verts, const index_t* faces, ind
   std::vector<std::int64_t> count(static_cast<size_t>(tiles) + 1, 0);
   p.num_drawn = D;
   for (std::int64_t k = 0; k < D; ++k) {
+    if (k + kAhead < D) __builtin_prefetch(&box[order[k + kAhead].second]);
     const index_t f = order[k].second;
     const BinEntry& b = box[f];
     for (index_t ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
@@ -356,6 +418,7 @@ Prepared prepare(const View& view, const float* verts, const index_t* faces, ind
   p.num_bins = p.tile_start[tiles];
   std::vector<std::int64_t> fill(p.tile_start.begin(), p.tile_start.end() - 1);
   for (std::int64_t k = 0; k < D; ++k) {  // in (zmin, id) order, so every tile's list is sorted
+    if (k + kAhead < D) __builtin_prefetch(&box[order[k + kAhead].second]);
     const BinEntry b = box[order[k].second];
     for (index_t ty = b.y0 / kTile; ty <= b.y1 / kTile; ++ty)
       for (index_t tx = b.x0 / kTile; tx <= b.x1 / kTile; ++tx) p.bins[fill[std::int64_t(ty) * p.tiles_x + tx]++] = b;
@@ -390,14 +453,21 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
   std::atomic<std::int64_t> n_scanned{0}, n_tested{0};
   const double w = s.edge_width, t_min = s.t_min;
 
-  parallel_for(tiles, threads, [&](std::int64_t t, int) {
+  // per worker thread: the tile's row lists and each pixel's pending fragments and output list
+  struct Scratch {
+    std::vector<RowEntry> rows;
+    std::vector<Frag> heap[kTile];
+    std::vector<index_t> frags[kTile];
+  };
+  std::vector<Scratch> scratch(static_cast<size_t>(threads));
+
+  parallel_for(tiles, threads, [&](std::int64_t t, int tid) {
     const index_t tx = index_t(t % p.tiles_x), ty = index_t(t / p.tiles_x);
     const BinEntry* list = p.bins + p.tile_start[t];
     const std::int64_t len = p.tile_start[t + 1] - p.tile_start[t];
     std::vector<index_t>& out = tile_frags[size_t(t)];
     if (len == 0) return;
-    std::vector<Frag> heap;
-    heap.reserve(64);
+    Scratch& sc = scratch[size_t(tid)];
     // bucket the tile's list by pixel row (each row keeps the slot order), narrowing each face's span in
     // the row to the pixels where all three edge distances exceed -w (a necessary condition for cov > 0)
     const index_t i0 = ty * kTile, i1 = std::min<index_t>(H, (ty + 1) * kTile);
@@ -408,12 +478,19 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
       for (index_t i = a; i <= b; ++i) ++row_start[i - i0 + 1];
     }
     for (int r = 0; r < kTile; ++r) row_start[r + 1] += row_start[r];
-    std::vector<RowEntry> rows(static_cast<size_t>(row_start[kTile]));
+    if (sc.rows.size() < size_t(row_start[kTile])) sc.rows.resize(size_t(row_start[kTile]));
+    RowEntry* rows = sc.rows.data();
     std::int64_t row_fill[kTile];
     std::copy(row_start, row_start + kTile, row_fill);
     for (std::int64_t k = 0; k < len; ++k) {
       const BinEntry& e = list[k];
-      const Face& fc = p.faces[e.slot];
+      if (k + kAhead < len) {  // the list is in depth order, so its faces lie all over memory
+        const index_t ahead = list[k + kAhead].slot;
+        __builtin_prefetch(&p.spans[ahead]);
+        __builtin_prefetch(&p.faces[ahead]);  // the edge lines, read by the coverage tests below
+        __builtin_prefetch(reinterpret_cast<const char*>(&p.faces[ahead]) + 64);
+      }
+      const RowSpan& rs = p.spans[e.slot];
       const index_t a = std::max<index_t>(e.y0, i0), b = std::min<index_t>(e.y1, i1 - 1);
       const double xl = std::max<double>(e.x0, j0), xh = std::min<double>(e.x1, j1);
       for (index_t i = a; i <= b; ++i) {
@@ -421,73 +498,95 @@ SoftRenderResult soft_render_forward(const float* verts, index_t N, const index_
         double lo = xl, hi = xh;  // in pixel-index units: centre u = j + 0.5
         bool empty = false;
         for (int q = 0; q < 3; ++q) {
-          const double c = fc.eb[q] * v + fc.ec[q] + w + fc.ea[q] * 0.5;  // sd_q + w at pixel index j: ea j + c
-          if (fc.ea[q] > 0) {
-            lo = std::max(lo, -c / fc.ea[q]);
-          } else if (fc.ea[q] < 0) {
-            hi = std::min(hi, -c / fc.ea[q]);
-          } else if (!(c > 0)) {
-            empty = true;
+          if (rs.kind[q] == 0) {
+            lo = std::max(lo, rs.k[q] * v + rs.m[q]);
+          } else if (rs.kind[q] == 1) {
+            hi = std::min(hi, rs.k[q] * v + rs.m[q]);
+          } else {  // nearly horizontal edge: bound it from its line
+            const Face& fc = p.faces[e.slot];
+            const double c = fc.eb[q] * v + fc.ec[q] + w + fc.ea[q] * 0.5;  // sd_q + w at pixel j: ea j + c
+            if (fc.ea[q] > 0) {
+              lo = std::max(lo, -c / fc.ea[q]);
+            } else if (fc.ea[q] < 0) {
+              hi = std::min(hi, -c / fc.ea[q]);
+            } else if (!(c > 0)) {
+              empty = true;
+            }
           }
         }
+        // floor / ceil keep a pixel of slack beyond the bounds: no pixel with cov > 0 is dropped
         if (empty || !(lo <= hi + 1.0)) continue;
         const index_t ja = index_t(std::max(xl, std::floor(lo))), jb = index_t(std::min(xh, std::ceil(hi)));
         if (ja > jb) continue;
-        rows[size_t(row_fill[i - i0]++)] = RowEntry{std::int16_t(ja), std::int16_t(jb), e.zmin, e.slot};
+        rows[row_fill[i - i0]++] = RowEntry{std::int16_t(ja), std::int16_t(jb), e.zmin, e.slot};
       }
     }
+    // Each row walks its list once for all its pixels together (a pixel only looks at the faces whose span
+    // holds it). A pixel's pending fragments are composited when a listed face that spans it has a zmin
+    // not smaller than their keys, or at the end: the same fragments in the same order as a walk that
+    // checked every listed face, since only faces that span the pixel add fragments to it.
+    const int nj = int(j1 - j0 + 1);
     std::int64_t scanned = 0, tested = 0;
     for (index_t i = i0; i < i1; ++i) {
-      const RowEntry* row = rows.data() + row_start[i - i0];
+      const RowEntry* row = rows + row_start[i - i0];
       const std::int64_t rlen = row_fill[i - i0] - row_start[i - i0];
-      for (index_t j = tx * kTile; j < std::min<index_t>(W, (tx + 1) * kTile); ++j) {
-        const double u = j + 0.5, v = i + 0.5;
-        double d[3];
-        view.ray(u, v, d);
-        double T = 1.0, C = 0.0, Z = 0.0;
-        bool done = false;
-        const size_t start = out.size();
-        heap.clear();
-        auto composite_until = [&](double limit) {
-          while (!heap.empty() && heap.back().key <= limit) {
-            if (T < t_min) {
-              done = true;
-              return;
-            }
-            const Frag& fr = heap.back();
-            C += frag_diffuse(*fr.fc, d) * fr.a * T;
-            Z += fr.z * fr.a * T;
-            T *= 1.0 - fr.a;
-            out.push_back(fr.face);
-            heap.pop_back();
+      const double v = i + 0.5;
+      double T[kTile], C[kTile], Z[kTile], dir[kTile][3];
+      for (int jj = 0; jj < nj; ++jj) {
+        T[jj] = 1.0;
+        C[jj] = Z[jj] = 0.0;
+        view.ray(j0 + jj + 0.5, v, dir[jj]);
+        sc.heap[jj].clear();
+        sc.frags[jj].clear();
+      }
+      // pops pixel jj's pending fragments with key <= limit; returns true once T < t_min (pixel done)
+      auto composite_until = [&](int jj, double limit) {
+        std::vector<Frag>& heap = sc.heap[jj];
+        while (!heap.empty() && heap.back().key <= limit) {
+          if (T[jj] < t_min) return true;
+          const Frag& fr = heap.back();
+          C[jj] += frag_diffuse(*fr.fc, dir[jj]) * fr.a * T[jj];
+          Z[jj] += fr.z * fr.a * T[jj];
+          T[jj] *= 1.0 - fr.a;
+          sc.frags[jj].push_back(fr.face);
+          heap.pop_back();
+        }
+        return T[jj] < t_min;
+      };
+      std::uint32_t active = (1u << nj) - 1u;  // pixels not done yet
+      for (std::int64_t k = 0; k < rlen && active; ++k) {
+        const RowEntry& b = row[k];
+        ++scanned;
+        std::uint32_t m = ((2u << (b.x1 - j0)) - (1u << (b.x0 - j0))) & active;
+        while (m) {
+          const int jj = __builtin_ctz(m);
+          m &= m - 1;
+          if (!sc.heap[jj].empty() && sc.heap[jj].back().key <= double(b.zmin) &&
+              composite_until(jj, double(b.zmin))) {
+            active &= ~(1u << jj);
+            continue;
           }
-          if (T < t_min) done = true;
-        };
-        for (std::int64_t k = 0; k < rlen; ++k) {
-          const RowEntry& b = row[k];
-          ++scanned;
-          if (!heap.empty() && heap.back().key <= double(b.zmin)) {
-            composite_until(double(b.zmin));
-            if (done) break;
-          }
-          if (j < b.x0 || j > b.x1) continue;
           ++tested;
           const Face& fc = p.faces[b.slot];
-          const double cov = coverage(fc, u, v, w, nullptr);
+          const double cov = coverage(fc, j0 + jj + 0.5, v, w, nullptr);
           if (cov <= 0.0) continue;
           double den;
           int which;
-          const double z = frag_depth(fc, d, &den, &which);
+          const double z = frag_depth(fc, dir[jj], &den, &which);
           Frag fr{cov < 1.0 ? z + (fc.zmax - fc.zmin) : z, z, fc.id, fc.opacity * cov, &fc};
+          std::vector<Frag>& heap = sc.heap[jj];
           heap.insert(std::upper_bound(heap.begin(), heap.end(), fr, farther), fr);
         }
-        if (!done) composite_until(std::numeric_limits<double>::infinity());
-        const size_t pix = size_t(i) * W + j;
-        r.diffuse[pix] = float(C);
-        r.depth[pix] = float(Z);
-        r.alpha[pix] = float(1.0 - T);
-        r.pix_range[2 * pix] = index_t(start);  // local for now, made global below
-        r.pix_range[2 * pix + 1] = index_t(out.size() - start);
+      }
+      for (int jj = 0; jj < nj; ++jj) {
+        if (active & (1u << jj)) composite_until(jj, std::numeric_limits<double>::infinity());
+        const size_t pix = size_t(i) * W + j0 + jj;
+        r.diffuse[pix] = float(C[jj]);
+        r.depth[pix] = float(Z[jj]);
+        r.alpha[pix] = float(1.0 - T[jj]);
+        r.pix_range[2 * pix] = index_t(out.size());  // local for now, made global below
+        r.pix_range[2 * pix + 1] = index_t(sc.frags[jj].size());
+        out.insert(out.end(), sc.frags[jj].begin(), sc.frags[jj].end());
       }
     }
     n_scanned += scanned;
@@ -569,20 +668,44 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
     }
   }
 
-  const int nthreads = std::max(1, int(std::min<std::int64_t>(threads, H)));
-  // per thread and slot: d L / d (P0, P1, P2) in camera space (9) and d L / d opacity (1)
-  double* acc = tl_acc.get(size_t(nthreads) * size_t(S_) * 10 + 1);
-  std::vector<std::uint8_t> used(static_cast<size_t>(nthreads), 0);
+  // Deterministic accumulation: the rows are cut into fixed blocks (independent of the thread count);
+  // each block sums its fragments' gradients, pixel by pixel in a fixed order, into records of its own
+  // (one per slot it touches: d L / d (P0, P1, P2) in camera space (9) and d L / d opacity (1)); a final
+  // pass adds the blocks' records in block order. So the result does not depend on the threads or their
+  // schedule.
+  const std::int64_t rows_per = 8;
+  const std::int64_t nblocks = (std::int64_t(H) + rows_per - 1) / rows_per;
+  const int nthreads = std::max(1, int(std::min<std::int64_t>(threads, nblocks)));
+  // kept per calling thread between calls (capacity reuse); the workers use the caller's through references
+  thread_local std::vector<std::vector<index_t>> tl_blk_slot;
+  thread_local std::vector<std::vector<double>> tl_blk_acc;
+  std::vector<std::vector<index_t>>& blk_slot = tl_blk_slot;
+  std::vector<std::vector<double>>& blk_acc = tl_blk_acc;
+  if (blk_slot.size() < size_t(nblocks)) {
+    blk_slot.resize(size_t(nblocks));
+    blk_acc.resize(size_t(nblocks));
+  }
+  // per worker thread and slot: the slot's record in the current block, -1 when it has none yet
+  index_t* loc_all = tl_loc.get(size_t(nthreads) * size_t(S_) + 1);
+  std::fill(loc_all, loc_all + size_t(nthreads) * size_t(S_), kNone);
   const double w = s.edge_width;
-  const std::int64_t rows_per = 4;
-  parallel_for((std::int64_t(H) + rows_per - 1) / rows_per, nthreads, [&](std::int64_t rb, int tid) {
-    double* ga = acc + size_t(tid) * size_t(S_) * 10;
-    if (!used[size_t(tid)]) {
-      std::fill(ga, ga + size_t(S_) * 10, 0.0);
-      used[size_t(tid)] = 1;
-    }
+  parallel_for(nblocks, nthreads, [&](std::int64_t rb, int tid) {
+    index_t* loc = loc_all + size_t(tid) * size_t(S_);
+    std::vector<index_t>& bslot = blk_slot[size_t(rb)];
+    std::vector<double>& bacc = blk_acc[size_t(rb)];
+    bslot.clear();
+    bacc.clear();
+    auto record = [&](index_t slot) {
+      if (loc[slot] == kNone) {
+        loc[slot] = index_t(bslot.size());
+        bslot.push_back(slot);
+        bacc.resize(bacc.size() + 10, 0.0);
+      }
+      return bacc.data() + 10 * size_t(loc[slot]);
+    };
     struct Rec {
       double a, T, cov, c, z, den;
+      double dq[6];  // d cov / d (screen corners)
       int which;
       index_t slot;
     };
@@ -597,13 +720,15 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
         const double u = j + 0.5, v = i + 0.5;
         double d[3];
         view.ray(u, v, d);
+        const double inv_dl = 1.0 / std::sqrt(dot3(d, d));
         recs.resize(size_t(cnt));
         double T = 1.0;
         for (index_t k = 0; k < cnt; ++k) {
           Rec& rc = recs[size_t(k)];
           rc.slot = frag_slot[start + k];
           const Face& fc = fdata[rc.slot];
-          rc.cov = coverage(fc, u, v, w, nullptr);
+          rc.cov = coverage(fc, u, v, w, rc.dq);
+          if (!(rc.cov > 0.0)) std::fill(rc.dq, rc.dq + 6, 0.0);  // coverage() leaves it unset then
           rc.a = fc.opacity * rc.cov;
           rc.T = T;
           rc.c = frag_diffuse(fc, d);
@@ -619,22 +744,23 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
           const double g_a = rc.T * (val - S);
           S = val * rc.a + (1.0 - rc.a) * S;
           const double w_frag = rc.a * rc.T;
-          ga[10 * size_t(rc.slot) + 9] += g_a * rc.cov;
+          double* gs = record(rc.slot);  // valid until the next record() call
+          gs[9] += g_a * rc.cov;
           double g[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};  // d L / d P_i (camera space)
           // coverage -> screen corners -> camera-space corners
           const double g_cov = g_a * fc.opacity;
           if (g_cov != 0.0 && rc.cov < 1.0) {
-            double dq[6] = {0, 0, 0, 0, 0, 0};
-            coverage(fc, u, v, w, dq);
+            const double* dq = rc.dq;
             for (int c = 0; c < 3; ++c) {
               const double gu = g_cov * dq[2 * c], gv = g_cov * dq[2 * c + 1];
               if (gu == 0.0 && gv == 0.0) continue;
               const double* Pc = FP[c];
               const double z = Pc[2];
               // u = cx - f x / z, v = cy + f y / z
-              g[c][0] += gu * (-view.f / z);
-              g[c][1] += gv * (view.f / z);
-              g[c][2] += gu * (view.f * Pc[0] / (z * z)) + gv * (-view.f * Pc[1] / (z * z));
+              const double fz = view.f / z;
+              g[c][0] -= gu * fz;
+              g[c][1] += gv * fz;
+              g[c][2] += (gu * Pc[0] - gv * Pc[1]) * (fz / z);
             }
           }
           // depth
@@ -657,19 +783,20 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
               cross3(diff, d, dd[1]);
               for (int k2 = 0; k2 < 3; ++k2) diff[k2] = P0[k2] - P1[k2];
               cross3(diff, d, dd[2]);
+              const double gz_den = g_z / rc.den;
               for (int c = 0; c < 3; ++c)
-                for (int k2 = 0; k2 < 3; ++k2) g[c][k2] += g_z * (dn[c][k2] - rc.z * dd[c][k2]) / rc.den;
+                for (int k2 = 0; k2 < 3; ++k2) g[c][k2] += gz_den * (dn[c][k2] - rc.z * dd[c][k2]);
             }
           }
           // diffuse = |n . d| / (|n| |d|)
           const double g_c = gD * w_frag;
           if (g_c != 0.0 && fc.nlen > 0.0) {
-            const double dl = std::sqrt(dot3(d, d));
             const double nd = dot3(fc.n, d);
-            const double sg = nd >= 0 ? 1.0 : -1.0;
-            const double cosv = nd / (fc.nlen * dl);
-            double gn[3];
-            for (int k2 = 0; k2 < 3; ++k2) gn[k2] = g_c * sg * (d[k2] / dl - cosv * fc.n[k2] / fc.nlen) / fc.nlen;
+            const double inv_n = 1.0 / fc.nlen;
+            const double cosv = nd * inv_n * inv_dl;
+            const double scale = (nd >= 0 ? g_c : -g_c) * inv_n;
+            double gn[3];  // d L / d n
+            for (int k2 = 0; k2 < 3; ++k2) gn[k2] = scale * (d[k2] * inv_dl - cosv * fc.n[k2] * inv_n);
             double e1[3], e2[3], g1[3], g2[3];
             for (int k2 = 0; k2 < 3; ++k2) {
               e1[k2] = FP[1][k2] - FP[0][k2];
@@ -683,29 +810,34 @@ SoftRenderGrad soft_render_backward(const float* verts, index_t N, const index_t
               g[0][k2] -= g1[k2] + g2[k2];
             }
           }
-          double* gs = ga + 10 * size_t(rc.slot);
           for (int c = 0; c < 3; ++c)
             for (int k2 = 0; k2 < 3; ++k2) gs[3 * c + k2] += g[c][k2];
         }
       }
     }
+    for (const index_t sl : bslot) loc[sl] = kNone;  // clean for the thread's next block
   });
 
   SoftRenderGrad out;
+  double* acc = tl_acc.get(size_t(S_) * 10 + 1);
+  std::fill(acc, acc + size_t(S_) * 10, 0.0);
+  for (std::int64_t rb = 0; rb < nblocks; ++rb) {
+    const std::vector<index_t>& bslot = blk_slot[size_t(rb)];
+    const double* bacc = blk_acc[size_t(rb)].data();
+    for (size_t r = 0; r < bslot.size(); ++r) {
+      double* gs = acc + 10 * size_t(bslot[r]);
+      for (int c = 0; c < 10; ++c) gs[c] += bacc[10 * r + c];
+    }
+  }
   double* gv = tl_gv.get(size_t(N) * 3 + 1);
   std::fill(gv, gv + size_t(N) * 3, 0.0);
   out.grad_opacity.assign(size_t(F), 0.0f);
   for (std::int64_t k = 0; k < S_; ++k) {
     const index_t* tri = faces + 3 * std::int64_t(face_of[k]);
-    double go_sum = 0.0;
-    for (int t = 0; t < nthreads; ++t) {
-      if (!used[size_t(t)]) continue;
-      const double* gs = acc + (size_t(t) * size_t(S_) + size_t(k)) * 10;
-      for (int c = 0; c < 3; ++c)
-        for (int k2 = 0; k2 < 3; ++k2) gv[3 * size_t(tri[c]) + k2] += gs[3 * c + k2];
-      go_sum += gs[9];
-    }
-    out.grad_opacity[size_t(face_of[k])] = float(go_sum);
+    const double* gs = acc + size_t(k) * 10;
+    for (int c = 0; c < 3; ++c)
+      for (int k2 = 0; k2 < 3; ++k2) gv[3 * size_t(tri[c]) + k2] += gs[3 * c + k2];
+    out.grad_opacity[size_t(face_of[k])] = float(gs[9]);
   }
   // camera = R world + t, so d L / d world = R^T d L / d camera
   out.grad_verts.assign(size_t(N) * 3, 0.0f);

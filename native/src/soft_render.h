@@ -33,9 +33,15 @@
 // the pixel stops as soon as T < t_min without visiting the rest of the list. The keys, not the output
 // depths, decide the order; ties go to the smaller face id.
 //
-// Threads: tiles (forward) and rows (backward) are shared among `num_threads` std::threads; each backward
-// thread accumulates into its own buffer. The face and bin arrays (about 250 bytes per face) are kept per
-// calling thread between calls, so repeated calls do not pay the page faults of fresh allocations.
+// Each row of a tile walks its list once for its 16 pixels together; a pixel only looks at the listed faces
+// whose span in the row (narrowed by the face's edge lines) holds it, and compositing at exactly the
+// points described above.
+//
+// Threads: tiles (forward) and blocks of 8 rows (backward) are shared among `num_threads` std::threads.
+// Results are bit-for-bit the same for any thread count and schedule: every pixel's outputs and fragment
+// list are computed by one thread, and the backward sums each block's gradients into records of that
+// block, which a final pass adds in block order. The face and bin arrays (about 350 bytes per face) are
+// kept per calling thread between calls, so repeated calls do not pay the page faults of fresh allocations.
 //
 // Faces with opacity <= min_opacity, with a vertex nearer than `near` to the camera plane, or with a
 // non-finite vertex are not drawn (and get no gradient).
