@@ -155,6 +155,38 @@ def test_band_targets_make_the_soft_fit_unbiased(sphere, sphere_views):
     assert offsets[int(np.argmin(losses["band"]))] == 0.0, losses
 
 
+def test_look_at_point_of_the_capture_rig():
+    from dmesh.recon.multiview import _look_at_point
+
+    w2c, _ = cap.camera_rig(64)
+    shifted = w2c.copy()
+    shifted[:, :3, 3] -= np.einsum("vij,j->vi", w2c[:, :3, :3], [0.3, -0.2, 0.1])  # rig moved to (0.3, -0.2, 0.1)
+    assert np.allclose(_look_at_point(w2c), 0.0, atol=1e-9)
+    assert np.allclose(_look_at_point(shifted), [0.3, -0.2, 0.1], atol=1e-9)
+    assert _look_at_point(np.repeat(w2c[:1], 3, axis=0)) is None  # one axis: no single nearest point
+
+
+@needs_gl
+def test_lopsided_object_falls_back_to_the_look_at_centre():
+    """The shared face mask is lopsided: its lifted box centre moves towards a camera of the rig, which then
+    sits inside the object's box; the cameras' look-at point (the vertex mean) keeps every camera out."""
+    from conftest import shared_mesh
+
+    from dmesh.recon.multiview import BOX_MARGIN, MIN_BOX, _lifted_points, _normalisation
+
+    from datasets.meshes import load_mesh
+
+    gt, _ = normalize(load_mesh(shared_mesh("open/face.off")), radius=1.0)
+    vw = check_views(cap.capture(gt, views=64, resolution=64))
+    pts = _lifted_points(vw)
+    box_centre = 0.5 * (pts.min(0) + pts.max(0))
+    radius = np.linalg.norm(pts - box_centre, axis=1).max()
+    eyes = -np.einsum("vji,vj->vi", vw.world_to_camera[:, :3, :3], vw.world_to_camera[:, :3, 3])
+    assert BOX_MARGIN * np.abs((eyes - box_centre) / radius).max(1).min() < MIN_BOX  # the box centre fails
+    center, scale, _, cam_box = _normalisation(vw)
+    assert np.allclose(center, 0.0, atol=1e-6) and BOX_MARGIN * cam_box >= MIN_BOX
+
+
 def _cube_with_centre():
     """A cube's 8 corners and its centre: 12 tets around the centre, hull = the cube's 12 triangles."""
     from dmesh.wdt import PowerDiagram
