@@ -461,7 +461,7 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
 def resolve_mesh_path(row: dict, db_path: str | Path) -> Path | None:
     """Absolute path of a stored run's output mesh (paths are stored relative to the store's folder)."""
     p = row.get("mesh_path")
-    if not p:
-        return None
+    if not isinstance(p, (str, os.PathLike)) or not str(p):
+        return None  # no mesh (a failed run): None from SQLite, NaN once the rows went through pandas
     p = Path(p)
     return p if p.is_absolute() else (Path(db_path).parent / p)

@@ -372,3 +372,12 @@ def test_prepare_input_tolerates_a_concurrent_capture(tmp_path, monkeypatch):
     assert prepare_input(shape, gt_path, "multiview", settings, 0, tmp_path) == dest
     assert sorted(p.name for p in dest.iterdir()) == ["theirs.txt"]
     assert [p.name for p in dest.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def test_resolve_mesh_path_of_a_failed_run(tmp_path):
+    from eval.runner import resolve_mesh_path
+
+    db = tmp_path / "results.sqlite"
+    assert resolve_mesh_path({"mesh_path": None}, db) is None
+    assert resolve_mesh_path({"mesh_path": float("nan")}, db) is None  # a failed row read through pandas
+    assert resolve_mesh_path({"mesh_path": "meshes/a.ply"}, db) == tmp_path / "meshes" / "a.ply"
