@@ -199,3 +199,10 @@ def test_ablation_tables_average_per_value_and_stay_out_of_table2(tmp_path):
     write_reports(path, tmp_path / "rep", renders=False)
     assert [r["method"] for r in csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv"))] == ["psr"]
     assert "1e-06" in (tmp_path / "rep" / "ablation_weight.md").read_text()
+
+
+def test_text_fields_show_empty_for_missing_values():
+    from eval.reports.tables import text
+
+    assert text("boom") == "boom"
+    assert text(None) == "" and text(float("nan")) == ""  # pandas fills an empty text column with NaN

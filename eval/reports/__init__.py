@@ -100,7 +100,7 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
             failures = sub[sub["status"] == "failed"] if len(sub) else sub
             if len(failures):
                 frows = [{"method": tables.method_label(r["method"], r["config_label"]), "shape": r["shape"],
-                          "seed": int(r["seed"]), "error": r["error"] or ""} for _, r in failures.iterrows()]
+                          "seed": int(r["seed"]), "error": tables.text(r["error"])} for _, r in failures.iterrows()]
                 fcols = [("method", "method", None), ("shape", "shape", None), ("seed", "seed", 1),
                          ("error", "error", None)]
                 body.append("<h3>Failed runs</h3>" + table_html(frows, fcols))
@@ -200,7 +200,7 @@ def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> lis
                     cap = f"{label}\nCD p2s {tables.fmt(float(cd) * 1e3)}e-3" if cd is not None and cd == cd else label
                     panels.append((cap, figures.cached_render(mp, cache)))
                 else:
-                    err = (r.get("error") or r["status"])[:34]
+                    err = (tables.text(r.get("error")) or r["status"])[:34]
                     panels.append((f"{label}\n{r['status']}: {err}", figures._placeholder(r["status"])))
             name = f"renders_{kind}_{_safe(shape)}.png"
             title = f"{shape} ({category}), {kind} input, seed {int(first['seed'])}"

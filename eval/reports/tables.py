@@ -32,6 +32,11 @@ OPTIONAL_METRICS = (("fscore", ("fscore", "f_score", "f1", "fscore_0.003")),
                     ("normal_consistency", ("normal_consistency", "nc")))
 
 
+def text(value) -> str:
+    """A stored text field for display: "" for None and for NaN (what pandas puts in an empty text column)."""
+    return value if isinstance(value, str) else ""
+
+
 def fmt(v, digits: int = 3) -> str:
     """`digits` significant digits, never in exponent form below 1e6; "" for None / NaN."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
@@ -123,7 +128,7 @@ def per_shape(df, input_kind: str) -> list[dict]:
                     "shape": r["shape"],
                     "category": r["category"], "seed": int(r["seed"]), "status": r["status"],
                     "cd_p2s": num(r.get("cd_p2s")), "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")),
-                    "faces": num(r.get("faces", r.get("n_faces"))), "error": r.get("error") or ""})
+                    "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error"))})
     return out
 
 
