@@ -18,8 +18,8 @@ import torch
 from datasets import capture as cap
 from datasets import synthetic
 from datasets.normalize import normalize
-from dmesh.recon.multiview import (MultiViewConfig, check_views, depth_channel, downsample, interior_faces,
-                                   reconstruct, soft_band_targets, visible_faces)
+from dmesh.recon.multiview import (MultiViewConfig, check_views, depth_channel, depth_consistent_faces, downsample,
+                                   interior_faces, reconstruct, soft_band_targets, visible_faces)
 
 
 def _gl_available() -> str | None:
@@ -101,6 +101,10 @@ def test_config_validation():
         MultiViewConfig(interior="some")
     with pytest.raises(ValueError, match="unknown preset"):
         MultiViewConfig.preset("slow")
+    with pytest.raises(ValueError, match="depth_tolerance"):
+        MultiViewConfig(depth_tolerance=0.0)
+    with pytest.raises(ValueError, match="voronoi"):
+        MultiViewConfig(voronoi="some")
     paper = MultiViewConfig.paper()
     assert paper.epochs == 4 and paper.refine_seeds == (1000, 3000, 10_000) and paper.grid == 20
     assert paper.steps_phase1 == (500,) * 4 and paper.steps_phase2 == (500,) * 4
@@ -185,6 +189,20 @@ def test_lopsided_object_falls_back_to_the_look_at_centre():
     assert BOX_MARGIN * np.abs((eyes - box_centre) / radius).max(1).min() < MIN_BOX  # the box centre fails
     center, scale, _, cam_box = _normalisation(vw)
     assert np.allclose(center, 0.0, atol=1e-6) and BOX_MARGIN * cam_box >= MIN_BOX
+
+
+@needs_gl
+def test_depth_consistency_keeps_the_surface_and_drops_what_lies_inside_or_outside(sphere, sphere_views):
+    vw = check_views(sphere_views)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+
+    def kept(verts, tol=0.02):
+        return depth_consistent_faces(verts, f, vw.world_to_camera, vw.fov_y_degrees, vw.depth, vw.mask, tol).mean()
+
+    assert kept(v) > 0.99                       # the captured surface itself
+    assert kept(0.9 * v) == 0.0                 # an inner shell: behind the surface in every view
+    assert kept(1.5 * v) == 0.0                 # an outer shell: in front of it, or on background
+    assert kept(0.9 * v, tol=0.2) > 0.99        # within a generous tolerance it counts as the surface
 
 
 def _cube_with_centre():
