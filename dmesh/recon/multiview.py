@@ -34,7 +34,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
 5. The mesh: faces of the final WDT whose three reals exceed `threshold`, minus interior faces (`interior`:
    "apex" drops a face when both of its tets have a real apex, upstream's `remove_invisible`; "visible"
    keeps only faces that are the first hit of some pixel ray of some view at the capture's resolution;
-   "both" applies both; "none" neither), oriented consistently, mapped back to the input frame. The same
+   "both" applies both; "none" neither), and with `depth_tolerance` minus the faces whose centroid is not
+   within it of the captured depth in any view (`depth_consistent_faces`: interior faces seen through
+   cracks and floaters; not upstream), oriented consistently, mapped back to the input frame. The same
    extraction (visibility at the optimised resolution) gives the mesh each re-seed samples. With
    `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
@@ -185,16 +187,17 @@ class MultiViewConfig:
     @classmethod
     def fast(cls, **overrides) -> "MultiViewConfig":
         """A CPU budget: 2-5 minutes per shape (64 views at 256 pixels) on 2 cores, against the paper's 1434 s
-        on a GPU; the accuracy is far behind TSDF fusion (reports/table2_multiview.md: CD p2s 20-30x TSDF's on
-        closed shapes).
+        on a GPU; the accuracy is still far behind TSDF fusion on closed shapes (reports/table2_multiview.md).
 
-        Measured through the harness (`dmesh bench eval/sweeps/table2_multiview.yaml`, 2 threads; CD p2s
-        x1e-3 from 100K samples per side, TSDF fusion on the same captures beside it): torus 35.2 in 141 s
-        (TSDF 1.19), genus2 37.2 in 242 s (1.67), trefoil 32.4 in 180 s (1.84), bowl 67.6 in 261 s (11.9).
-        Most of the CD is predicted surface lying inside the object: on the torus 85-100% of the area farther
-        than 0.03 from the GT is inside it, and the median signed distance of the predicted surface is -0.01
-        (half a pixel at 128 pixels), so a shrink remains even with the band targets (see
-        `soft_band_targets`, which removed the renderer's half-pixel bias: torus 34.7 -> 31.0 on one thread).
+        Without the depth-consistency filter (harness, 2 threads; CD p2s x1e-3 from 100K samples per side,
+        TSDF fusion on the same captures beside it): torus 35.2 in 141 s (TSDF 1.19), genus2 37.2 in 242 s
+        (1.67), trefoil 32.4 in 180 s (1.84), bowl 67.6 in 261 s (11.9). Most of that CD was predicted
+        surface inside the object: on the torus 85-100% of the area farther than 0.03 from the GT lay inside
+        it. `depth_tolerance=0.02` (about one optimised pixel) removes the faces that no view sees on its
+        captured surface: torus 31.0 -> 18.6 on one thread (0.04: 22.7). A shrink of the remaining surface
+        (median signed distance about -0.01) comes from the coarse start: epoch 1 re-seeded from the GT
+        itself and optimised 40 steps ends at a median of -0.002. `soft_band_targets` removed the
+        renderer's own half-pixel bias (torus 34.7 -> 31.0 on one thread).
 
         The choices, each measured on the torus / bowl / plant captures (CD p2s x1e-3, one thread; runs
         differ a lot from one another, so only large gaps count): a 14^3 grid instead of 20^3 (20^3 costs
