@@ -353,11 +353,15 @@ def _lifted_points(vw: _Views) -> np.ndarray:
     return np.concatenate(clouds)
 
 
+def _eyes(world_to_camera: np.ndarray) -> np.ndarray:
+    """(V, 3) camera centres of a (V, 4, 4) world_to_camera stack: -R^T t."""
+    return -np.einsum("vji,vj->vi", world_to_camera[:, :3, :3], world_to_camera[:, :3, 3])
+
+
 def _look_at_point(world_to_camera: np.ndarray) -> np.ndarray | None:
     """The point nearest (least squares) to every camera's optical axis, or None when the axes are parallel."""
-    rot, t = world_to_camera[:, :3, :3], world_to_camera[:, :3, 3]
-    eyes = -np.einsum("vji,vj->vi", rot, t)
-    axis = -rot[:, 2, :]  # each camera looks down its -z axis
+    eyes = _eyes(world_to_camera)
+    axis = -world_to_camera[:, 2, :3]  # each camera looks down its -z axis
     proj = np.eye(3)[None] - axis[:, :, None] * axis[:, None, :]
     a, b = proj.sum(0), np.einsum("vij,vj->i", proj, eyes)
     if np.linalg.cond(a) > 1e8:
@@ -365,8 +369,8 @@ def _look_at_point(world_to_camera: np.ndarray) -> np.ndarray | None:
     return np.linalg.solve(a, b)
 
 
-def _normalisation(vw: _Views) -> tuple[np.ndarray, float, np.ndarray, float]:
-    """Centre, scale (object radius 1), normalised world_to_camera (V, 4, 4) and the nearest camera's box.
+def _normalisation(vw: _Views) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """Centre, scale (object radius 1), normalised world_to_camera (V, 4, 4) and camera centres (V, 3).
 
     The centre is the lifted pixels' bounding-box centre; when that leaves a camera inside [-MIN_BOX,
     MIN_BOX]^3 / BOX_MARGIN (a lopsided object: the box centre moves towards a camera), the cameras'
@@ -388,10 +392,10 @@ def _normalisation(vw: _Views) -> tuple[np.ndarray, float, np.ndarray, float]:
         # World -> normalised: x' = (x - center) * scale; camera space scales by the same factor.
         w2c = vw.world_to_camera.copy()
         w2c[:, :3, 3] = scale * (w2c[:, :3, 3] + np.einsum("vij,j->vi", w2c[:, :3, :3], center))
-        eyes = -np.einsum("vji,vj->vi", w2c[:, :3, :3], w2c[:, :3, 3])
+        eyes = _eyes(w2c)
         cam_box = float(np.abs(eyes).max(1).min())
         if BOX_MARGIN * cam_box >= MIN_BOX:
-            return center, scale, w2c, cam_box
+            return center, scale, w2c, eyes
         nearest.append(cam_box)
     raise ValueError(f"a camera is too close to the object: every camera must lie outside the box "
                      f"[-{MIN_BOX}, {MIN_BOX}]^3 around it (object radius 1), the nearest is at {max(nearest):.3f}")
@@ -683,8 +687,8 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
     notify({"stage": "init"})
     with clock("init"):
-        center, scale, w2c, cam_box = _normalisation(vw)
-        eyes = -np.einsum("vji,vj->vi", w2c[:, :3, :3], w2c[:, :3, 3])
+        center, scale, w2c, eyes = _normalisation(vw)
+        cam_box = float(np.abs(eyes).max(1).min())
         box = min(cfg.box, BOX_MARGIN * cam_box)
         h = vw.diffuse.shape[1]
         res = h if cfg.resolution is None else min(int(cfg.resolution), h)
