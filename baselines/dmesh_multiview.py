@@ -4,8 +4,9 @@ Shape letters: V views, H x W pixels, F output faces.
 
 The config is `dmesh.recon.multiview.MultiViewConfig` (a frozen dataclass): the default is the `fast`
 preset. Pass an instance (e.g. `MultiViewConfig.paper()`), or a mapping of field overrides, optionally with
-`"preset": "paper" | "fast" | "tiny"` naming the base they apply to (as for `DMeshPointCloud`). The reports
-show this method as `dmesh` in the multi-view table (`eval.reports.tables.DISPLAY_NAMES`).
+`"preset": "paper" | "fast" | "depth" | "tiny"` naming the base they apply to (as for `DMeshPointCloud`). The
+reports show this method as `dmesh` in the multi-view table (`eval.reports.tables.DISPLAY_NAMES`), and its
+`depth` preset (DMesh's point-cloud fit to the lifted depth pixels) as `dmesh [preset=depth]`.
 """
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 #: The presets of `dmesh.recon.multiview.PRESETS` (a test checks they agree), listed without importing torch.
-PRESET_NAMES = ("fast", "paper", "tiny")
+PRESET_NAMES = ("fast", "paper", "depth", "tiny")
 
 
 def read_capture(directory: str | Path):

@@ -35,7 +35,12 @@ def add_arguments(p):
     p.add_argument("input", metavar="INPUT", help="points (.npy/.xyz/.txt/.pts/.ply) or a mesh (sampled); "
                    "multiview: a folder written by `dmesh capture`")
     p.add_argument("-o", "--out", required=True, help="output mesh (.obj, .ply, .off or .stl)")
-    p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="settings preset (default: fast)")
+    from eval.commands._reconstruct_multiview import PRESET_NAMES as MULTIVIEW_PRESETS
+
+    names = PRESET_NAMES + tuple(n for n in MULTIVIEW_PRESETS if n not in PRESET_NAMES)
+    p.add_argument("--preset", choices=names, default="fast",
+                   help="settings preset (default: fast; depth: multiview only, DMesh's point-cloud fit to the "
+                   "lifted depth pixels)")
     p.add_argument("--normals", action="store_true",
                    help="use the input normals in the loss (Eq. 13; lambda_normal 1e-3 unless --set)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
