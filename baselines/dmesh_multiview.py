@@ -42,14 +42,7 @@ class DMeshMultiView(DMeshPointCloud):
             raise ValueError("this method needs a multi-view capture (inputs.views is None)")
         if inputs.seed != cfg.seed:
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
-        res = reconstruct(inputs.views, cfg)
-        for k, v in res.timings.items():
-            if k != "total":
-                sw.timings[k] = sw.timings.get(k, 0.0) + v
-        last = res.history[-1] if res.history else {}
-        info = dict(res.info)
-        info.update({"final_loss": last.get("loss"), "steps": len(res.history), "config": dataclasses.asdict(cfg)})
-        return res.mesh, info
+        return self._output(reconstruct(inputs.views, cfg), cfg, sw)
 
 
 __all__ = ["DMeshMultiView"]

@@ -56,7 +56,13 @@ class DMeshPointCloud(Method):
         pts, nrm = check_points(inputs, need_normals=cfg.lambda_normal > 0)
         if inputs.seed != cfg.seed:
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
-        res = reconstruct(pts, nrm, cfg)
+        return self._output(reconstruct(pts, nrm, cfg), cfg, sw)
+
+    @staticmethod
+    def _output(res, cfg, sw: Stopwatch):
+        """(mesh, info) of a DMesh reconstruction result; its stage timings are added to `sw`."""
+        import dataclasses
+
         for k, v in res.timings.items():
             if k != "total":
                 sw.timings[k] = sw.timings.get(k, 0.0) + v

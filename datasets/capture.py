@@ -283,6 +283,15 @@ void main() {
 """
 
 
+def gl_problem() -> str | None:
+    """None when headless OpenGL works here (`gl_platform`), else the one-line reason it does not."""
+    try:
+        gl_platform()
+        return None
+    except RuntimeError as exc:
+        return str(exc)
+
+
 def gl_platform() -> str:
     """Import PyOpenGL on a headless platform and return its name ("osmesa" or "egl").
 

@@ -11,15 +11,7 @@ from datasets import capture as cap
 from datasets import synthetic
 
 
-def _gl_available() -> str | None:
-    try:
-        cap.gl_platform()
-        return None
-    except RuntimeError as exc:
-        return str(exc)
-
-
-_NO_GL = _gl_available()
+_NO_GL = cap.gl_problem()
 needs_gl = pytest.mark.skipif(_NO_GL is not None, reason=f"no headless OpenGL (OSMesa/EGL): {_NO_GL}")
 
 

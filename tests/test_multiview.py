@@ -22,15 +22,7 @@ from dmesh.recon.multiview import (MultiViewConfig, check_views, depth_channel, 
                                    interior_faces, reconstruct, soft_band_targets, visible_faces)
 
 
-def _gl_available() -> str | None:
-    try:
-        cap.gl_platform()
-        return None
-    except RuntimeError as exc:
-        return str(exc)
-
-
-_NO_GL = _gl_available()
+_NO_GL = cap.gl_problem()
 needs_gl = pytest.mark.skipif(_NO_GL is not None, reason=f"no headless OpenGL (OSMesa/EGL): {_NO_GL}")
 
 #: The test capture: few views at low resolution (the tiny preset optimises at 48 pixels).

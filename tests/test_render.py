@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from datasets.capture import camera_rig, look_at
+from datasets.capture import gl_problem as _gl_problem
 from dmesh import native
 from dmesh.reference.render import soft_render_naive, tet_render_naive
 from dmesh.render import Camera, soft_render, soft_render_views, tet_render, tet_render_views
@@ -238,22 +239,13 @@ def test_soft_bitwise_identical_across_thread_counts(scene):
 # Soft renderer versus the ground-truth capture
 # --------------------------------------------------------------------------------------------------------
 
-def _gl_available() -> bool:
-    try:
-        from datasets.capture import gl_platform
-        gl_platform()
-        return True
-    except Exception:
-        return False
-
-
 def _away_from_silhouettes(mask: np.ndarray, r: int = 2) -> np.ndarray:
     from scipy import ndimage
     return np.stack([ndimage.binary_erosion(m, iterations=r) | ~ndimage.binary_dilation(m, iterations=r)
                      for m in mask])
 
 
-@pytest.mark.skipif(not _gl_available(), reason="no headless OpenGL (OSMesa/EGL) for the capture")
+@pytest.mark.skipif(_gl_problem() is not None, reason="no headless OpenGL (OSMesa/EGL) for the capture")
 @pytest.mark.parametrize("shape", ["sphere", "box"])
 def test_opaque_mesh_reproduces_capture(shape):
     import trimesh

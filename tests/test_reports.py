@@ -8,6 +8,7 @@ import math
 
 import pytest
 
+from datasets.capture import gl_problem as _gl_problem
 from eval.reports import paper_numbers, tables, write_reports
 from eval.store import Store
 
@@ -149,18 +150,7 @@ def test_fmt_fixed_significant_digits():
         ["7.42", "0.527", "110", "1234", "0", "", ""]
 
 
-def _gl_available() -> bool:
-    try:
-        from datasets.capture import gl_platform
-
-        gl_platform()
-        import pyrender  # noqa: F401
-    except Exception:  # noqa: BLE001 - any failure means no offscreen GL here
-        return False
-    return True
-
-
-@pytest.mark.skipif(not _gl_available(), reason="no offscreen OpenGL (OSMesa / EGL) for pyrender")
+@pytest.mark.skipif(_gl_problem() is not None, reason="no offscreen OpenGL (OSMesa / EGL) for pyrender")
 def test_render_shows_the_object_both_sides():
     import numpy as np
     import trimesh

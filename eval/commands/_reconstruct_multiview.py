@@ -8,7 +8,6 @@ config, the per-epoch counts and the final figures. Every file is written under 
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 #: The presets of `dmesh.recon.multiview.PRESETS` (a test checks they agree), listed without importing torch.
@@ -53,7 +52,7 @@ def build_config(preset: str, seed: int, overrides: dict):
 def run_multiview(args, overrides: dict) -> int:
     """The `multiview` kind of `dmesh reconstruct` (args as parsed there; overrides from `--set`)."""
     from dmesh.recon.multiview import reconstruct
-    from eval.io import atomic_path, write_text
+    from eval.commands.reconstruct import write_outputs
     from eval.progress import progress
 
     out = Path(args.out)
@@ -75,14 +74,6 @@ def run_multiview(args, overrides: dict) -> int:
         res = reconstruct(views, cfg, callback=on_step, state_path=args.state)
     finally:
         bar.close()
-    if len(res.mesh.faces) == 0:
-        raise ValueError("the reconstruction has no faces (no point kept a real value above the threshold)")
-    with atomic_path(out) as tmp:
-        res.mesh.export(tmp, file_type=out.suffix.lower().lstrip("."))
-    report = {"input": str(args.input), "output": str(out), "kind": "multiview", "preset": args.preset,
-              "timings_s": {k: round(v, 4) for k, v in res.timings.items()}, "info": res.info,
-              "final": res.history[-1] if res.history else None, "config": dataclasses.asdict(cfg)}
-    timings_path = out.with_name(out.stem + ".timings.json")
-    write_text(timings_path, json.dumps(report, indent=2, default=str) + "\n")
-    print(f"wrote {out} ({len(res.mesh.faces)} faces, {res.timings['total']:.1f} s) and {timings_path}")
+    write_outputs(out, res, cfg, {"input": str(args.input), "output": str(out), "kind": "multiview",
+                                  "preset": args.preset})
     return 0

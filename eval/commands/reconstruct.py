@@ -165,9 +165,26 @@ def build_config(preset: str, seed: int, steps: int | None, normals: bool, overr
         raise ValueError(f"bad config value: {exc}") from None
 
 
+def write_outputs(out: Path, res, cfg, report: dict) -> None:
+    """Writes a reconstruction's mesh to `out` and `OUT.timings.json` beside it (`report` + the timings,
+    info, last step and config), each under a temporary name, renamed when complete.
+
+    Raises ValueError (one line) when the mesh has no faces; nothing is written then."""
+    from eval.io import atomic_path, write_text
+
+    if len(res.mesh.faces) == 0:
+        raise ValueError("the reconstruction has no faces (no point kept a real value above the threshold)")
+    with atomic_path(out) as tmp:
+        res.mesh.export(tmp, file_type=out.suffix.lower().lstrip("."))
+    report = {**report, "timings_s": {k: round(v, 4) for k, v in res.timings.items()}, "info": res.info,
+              "final": res.history[-1] if res.history else None, "config": dataclasses.asdict(cfg)}
+    timings_path = out.with_name(out.stem + ".timings.json")
+    write_text(timings_path, json.dumps(report, indent=2, default=str) + "\n")
+    print(f"wrote {out} ({len(res.mesh.faces)} faces, {res.timings['total']:.1f} s) and {timings_path}")
+
+
 def run(args) -> int:
     from dmesh.recon.pointcloud import reconstruct
-    from eval.io import atomic_path, write_text
     from eval.progress import progress
 
     out = Path(args.out)
@@ -198,14 +215,5 @@ def run(args) -> int:
         res = reconstruct(points, normals, cfg, callback=on_step, state_path=args.state)
     finally:
         bar.close()
-    if len(res.mesh.faces) == 0:
-        raise ValueError("the reconstruction has no faces (no point kept a real value above the threshold)")
-    with atomic_path(out) as tmp:
-        res.mesh.export(tmp, file_type=out.suffix.lower().lstrip("."))
-    report = {"input": str(args.input), "output": str(out), "preset": args.preset,
-              "timings_s": {k: round(v, 4) for k, v in res.timings.items()}, "info": res.info,
-              "final": res.history[-1] if res.history else None, "config": dataclasses.asdict(cfg)}
-    timings_path = out.with_name(out.stem + ".timings.json")
-    write_text(timings_path, json.dumps(report, indent=2, default=str) + "\n")
-    print(f"wrote {out} ({len(res.mesh.faces)} faces, {res.timings['total']:.1f} s) and {timings_path}")
+    write_outputs(out, res, cfg, {"input": str(args.input), "output": str(out), "preset": args.preset})
     return 0
