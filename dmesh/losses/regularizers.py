@@ -91,5 +91,25 @@ def ramp(step: int, start: float, end: float, steps: int) -> float:
         return float(end)
     return float(start + (end - start) * step / steps)
 
+def add_phase1_regularizers(loss, dm, fp, pd, cfg, step: int):
+    """`loss` plus the regularisers of a phase-1 step, added in a fixed order: weight (`cfg.lambda_weight`,
+    over the power diagram `pd`), real (ramped from `cfg.lambda_real_start` to `cfg.lambda_real_end` over
+    `cfg.real_ramp_steps`) and quality (`cfg.lambda_quality`); a zero weight skips its term.
 
-__all__ = ["weight_regularizer", "real_regularizer", "quality_regularizer", "aspect_ratios", "ramp"]
+    Args:
+        loss: scalar tensor (the data term); dm: `DMesh`; fp: its `face_probabilities` (faces, prob_wdt,
+        prob); pd: the `PowerDiagram` of this step; cfg: a `PointCloudConfig` or `MultiViewConfig` (any object
+        with those fields); step: the phase-1 step (for the ramp).
+    """
+    if cfg.lambda_weight > 0:
+        loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd)
+    coef = ramp(step, cfg.lambda_real_start, cfg.lambda_real_end, cfg.real_ramp_steps)
+    if coef > 0:
+        loss = loss + coef * real_regularizer(dm.reals, fp.faces, fp.prob_wdt)
+    if cfg.lambda_quality > 0:
+        loss = loss + cfg.lambda_quality * quality_regularizer(dm.points, fp.faces, fp.prob, min_prob=1e-4)
+    return loss
+
+
+__all__ = ["add_phase1_regularizers", "weight_regularizer", "real_regularizer", "quality_regularizer",
+           "aspect_ratios", "ramp"]

@@ -60,7 +60,7 @@ import numpy as np
 import torch
 
 from dmesh.extract import mesh_faces
-from dmesh.losses.regularizers import quality_regularizer, ramp, real_regularizer, weight_regularizer
+from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import ProbabilityConfig, dmin
 from dmesh.recon.init import seeds_and_voronoi
 from dmesh.recon.optim import BoundedAdam, StepConfig
@@ -854,15 +854,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
                                             [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0)
                     loss_img = image_loss(out, torch.from_numpy(ids), soft)
                 with clock("phase1_regularizers"):
-                    loss = loss_img
-                    if cfg.lambda_weight > 0:
-                        loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd)
-                    coef = ramp(step, cfg.lambda_real_start, cfg.lambda_real_end, cfg.real_ramp_steps)
-                    if coef > 0:
-                        loss = loss + coef * real_regularizer(dm.reals, fp.faces, fp.prob_wdt)
-                    if cfg.lambda_quality > 0:
-                        loss = loss + cfg.lambda_quality * quality_regularizer(dm.points, fp.faces, fp.prob,
-                                                                                min_prob=1e-4)
+                    loss = add_phase1_regularizers(loss_img, dm, fp, pd, cfg, step)
                 with clock("phase1_backward"):
                     opt.zero_grad()
                     if loss.requires_grad:
