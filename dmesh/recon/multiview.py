@@ -201,7 +201,7 @@ class MultiViewConfig:
 
     @classmethod
     def fast(cls, **overrides) -> "MultiViewConfig":
-        """The paper's procedure at a CPU budget: 2-5 minutes per shape (64 views at 256 pixels) on 2 cores,
+        """The paper's procedure at a CPU budget: 3-4 minutes per shape (64 views at 256 pixels) on 2 cores,
         against the paper's 1434 s on a GPU; the accuracy is far behind TSDF fusion on closed shapes
         (reports/table2_multiview.md). The `depth` preset starts from the depth pixels instead and beats it.
 
@@ -221,8 +221,8 @@ class MultiViewConfig:
         epoch 0 at lr 2e-3 with the reals' lr kept at 0.33 per step (bowl 84 after epoch 0 against 126 at
         lr 1e-3: points must travel a grid spacing); re-seeds of 1000 and 3000 samples with all their
         Voronoi vertices (keeping 3 per seed: torus 56 against 37 with all; a third re-seed of 10000 with
-        4000 Voronoi vertices: torus 147); images at 128 pixels, 6 views per step (4: bowl epoch 0 126,
-        8: 107); the "both" interior rule (with apex only, 97% of the torus's predicted area farther than
+        4000 Voronoi vertices: torus 147); the capture's resolution (below), 6 views per step (at 128
+        pixels, 4: bowl epoch 0 126, 8: 107); the "both" interior rule (with apex only, 97% of the torus's predicted area farther than
         0.03 from the GT lay inside it: interior faces left standing); and
         `select_best`, which returned the bowl's epoch-0 mesh (86 against 108 for its last epoch; the
         image loss over all views ranked the epochs as the CD did in most runs looked at, but not all: see
@@ -232,12 +232,12 @@ class MultiViewConfig:
         without band targets); 80 steps in epoch 1 instead of 40 (image loss 0.058 against 0.071, CD 44.3
         against 44.8, without band targets); even (farthest-point) re-seeds (`even_seeds`: 44.6 against
         31.0, though with a lower image loss); even re-seeds with poles only (`voronoi="poles"`: 36.6, its
-        last epoch collapsed); quality regulariser 1e-2 (35.8, again a lower image loss). Images at 256
-        pixels (the capture's, `resolution=None`): torus 20.9 against 31.0 (513 s on one thread, shared
-        with the table sweep), and with the depth filter 12.9 against 18.6 (409 s on one thread); the
-        largest gain found, not yet measured on the other shapes, so not yet the preset's."""
+        last epoch collapsed); quality regulariser 1e-2 (35.8, again a lower image loss). Images at the
+        capture's 256 pixels (`resolution=None`, the paper's setting) instead of 128: torus 12.9 against 18.6
+        on one thread; the Table 2 sweep (harness, 2 threads, class means over 4 shapes) closed 16.7 against
+        18.9, open 20.1 against 19.6, mixed 15.7 against 19.1, in 173-230 s per shape against 118-143 s."""
         base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(60, 40, 40), steps_phase2=(20, 20, 20),
-                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=128,
+                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=None,
                     lambda_weight=0.0, real_ramp_steps=10, freeze_phase2=(0,), interior="both", select_best=True,
                     depth_tolerance=0.02, save_every=10)
         base.update(overrides)
