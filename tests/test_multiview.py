@@ -302,8 +302,10 @@ DEPTH_LIMIT = 0.0144
 @needs_gl
 def test_depth_start_reconstruction(sphere, sphere_views, one_thread):
     cfg = MultiViewConfig.depth(init_preset="tiny", init_points=20_000)
-    res = reconstruct(sphere_views, cfg)
+    seen = []
+    res = reconstruct(sphere_views, cfg, callback=seen.append)
     assert _p2s(res.mesh, sphere) < DEPTH_LIMIT
+    assert [r["stage"] for r in seen if "stage" in r][:2] == ["init", "init_depth"]
     assert res.info["init_depth"]["lifted_points"] == 20_000 and res.history == []
     again = reconstruct(sphere_views, cfg)
     assert np.array_equal(again.mesh.faces, res.mesh.faces)
@@ -393,7 +395,7 @@ def test_cli_depth_preset_and_its_pointcloud_refusal(sphere_views, tmp_path):
     report = json.loads((tmp_path / "mesh.timings.json").read_text())
     assert report["config"]["init"] == "depth" and report["info"]["init_depth"]["lifted_points"] == 5000
     r = _cli("reconstruct", "pointcloud", str(out), "-o", str(tmp_path / "again.ply"), "--preset", "depth")
-    assert r.returncode != 0 and "unknown preset 'depth'" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode != 0 and "'depth' is for multi-view input only" in r.stderr and "Traceback" not in r.stderr
 
 
 @pytest.mark.parametrize("setup,match", [

@@ -718,7 +718,8 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         config: `MultiViewConfig` (None: the paper preset).
         callback: called after every step with {"epoch", "phase", "step", "steps", "loss", "image", "faces"
             (current mesh faces), "drawn" (faces rendered), "candidates", "seconds"}; and with
-            {"stage": name} when a stage starts ("init", "epoch<e>_phase1", "epoch<e>_phase2", "extract").
+            {"stage": name} when a stage starts ("init", "init_depth" (`init="depth"`), "epoch<e>_phase1",
+            "epoch<e>_phase2", "extract").
         state_path: file for the resumable state; an existing state of the same input and config is resumed.
     Returns:
         `MultiViewResult`.
@@ -789,6 +790,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
     def init_points(epoch: int, mesh) -> DMesh:
         if epoch == 0 and cfg.init == "depth":
+            notify({"stage": "init_depth"})
             with clock("init_depth"):
                 return depth_init(vw, center, scale, box, cfg, rng, info)
         if epoch == 0 or mesh is None:

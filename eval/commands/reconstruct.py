@@ -194,6 +194,9 @@ def run(args) -> int:
         from eval.commands._reconstruct_multiview import run_multiview
 
         return run_multiview(args, _parse_overrides(args.set))
+    if args.preset not in PRESET_NAMES:
+        raise ValueError(f"preset {args.preset!r} is for multi-view input only; point clouds take "
+                         f"{', '.join(PRESET_NAMES)}")
     cfg = build_config(args.preset, args.seed, args.steps, args.normals, _parse_overrides(args.set))
     points, normals = read_points(args.input, args.samples, args.seed)
     if args.normals and normals is None:
