@@ -14,8 +14,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    camera lies outside the convex hull of the points, as the tetrahedral renderer needs.
 2. Epoch 0 starts from a `grid`^3 grid of real points (cell centres over [-grid_extent, grid_extent]^3, all
    weights 1, all reals 1), or with `init="depth"` (not upstream; the `depth` preset) from DMesh's
-   point-cloud fit to `init_points` of the lifted depth pixels (`depth_init`). Epoch e > 0 re-seeds: `refine_seeds[e-1]` area-uniform samples of the current
-   mesh (after interior-face removal) become real seeds, their Voronoi vertices inside [-domain, domain]^3
+   point-cloud fit to `init_points` of the lifted depth pixels (`depth_init`). Epoch e > 0 re-seeds:
+   `refine_seeds[e-1]` area-uniform samples of the current mesh (after interior-face removal) become real
+   seeds, their Voronoi vertices inside [-domain, domain]^3
    (all, or the `voronoi_per_seed` x seeds with the largest empty spheres) and the 8 corners of the box
    imaginary points (`dmesh.recon.init.seeds_and_voronoi`); the previous points are dropped (upstream:
    only the surface carries over).
@@ -36,10 +37,11 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    "apex" drops a face when both of its tets have a real apex, upstream's `remove_invisible`; "visible"
    keeps only faces that are the first hit of some pixel ray of some view at the capture's resolution;
    "both" applies both; "sheet" is the point-cloud extraction's one-sheet rule, `dmesh.extract`; "none"
-   neither), and with `depth_tolerance` minus the faces whose centroid is not
-   within it of the captured depth in any view (`depth_consistent_faces`: interior faces seen through
-   cracks and floaters; not upstream), oriented consistently, mapped back to the input frame. The same
-   extraction (visibility at the optimised resolution) gives the mesh each re-seed samples. With
+   neither), and with `depth_tolerance` minus the faces whose centroid is not within it of the captured
+   depth in any view (`depth_consistent_faces`: interior faces seen through cracks and floaters; not
+   upstream), oriented consistently, mapped back to the input frame. The same extraction (visibility at
+   the optimised resolution) gives the mesh each re-seed samples; the last epoch's is extracted once, at
+   the capture's resolution, unless `select_best` may pick another. With
    `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
 
@@ -222,8 +224,8 @@ class MultiViewConfig:
         lr 1e-3: points must travel a grid spacing); re-seeds of 1000 and 3000 samples with all their
         Voronoi vertices (keeping 3 per seed: torus 56 against 37 with all; a third re-seed of 10000 with
         4000 Voronoi vertices: torus 147); the capture's resolution (below), 6 views per step (at 128
-        pixels, 4: bowl epoch 0 126, 8: 107); the "both" interior rule (with apex only, 97% of the torus's predicted area farther than
-        0.03 from the GT lay inside it: interior faces left standing); and
+        pixels, 4: bowl epoch 0 126, 8: 107); the "both" interior rule (with apex only, 97% of the torus's
+        predicted area farther than 0.03 from the GT lay inside it: interior faces left standing); and
         `select_best`, which returned the bowl's epoch-0 mesh (86 against 108 for its last epoch; the
         image loss over all views ranked the epochs as the CD did in most runs looked at, but not all: see
         below). The weight regulariser (an orthocentre pass over every tet) is off; upstream's phase-2
@@ -438,8 +440,8 @@ def depth_init(vw: _Views, center: np.ndarray, scale: float, box: float, cfg: Mu
     (`dmesh.recon.pointcloud.reconstruct`, preset `cfg.init_preset`), and its DMesh is mapped into this
     frame (positions by the similarity, weights by its squared scale, so the power diagram is the same) with
     every point clipped into the box. The depth images are half of the multi-view input; lifted, they are
-    a point cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than a grid
-    start refined through 128-pixel images (see `MultiViewConfig.fast`)."""
+    a point cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid
+    start refined through the images (see `MultiViewConfig.depth`)."""
     from dmesh.recon.pointcloud import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct as reconstruct_points
     from dmesh.representation import DMesh
