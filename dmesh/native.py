@@ -132,6 +132,73 @@ def merge_csr(off_a, idx_a, off_b, idx_b):
 
 
 # ----------------------------------------------------------------------------------------------------------
+# Fused Delta kernels (native/src/delta_recompute.h): argmin search and per-vertex distances in one forward
+# call, their analytic gradient in one backward call, on a `DeltaDiagram` handle (validated once per pass).
+# ----------------------------------------------------------------------------------------------------------
+
+def delta_diagram(points, weights, pd, num_threads: int = 0):
+    """The `_native.DeltaDiagram` of `pd` (a `dmesh.wdt.PowerDiagram`, duck-typed) for the points (N, 3)
+    and weights (N,) (float64 arrays; the diagram's combinatorics, geometry recomputed from these)."""
+    i32 = lambda a: np.ascontiguousarray(a, dtype=INDEX_DTYPE)  # noqa: E731
+    return _native.delta_diagram(
+        np.ascontiguousarray(points, dtype=GEOMETRY_DTYPE), np.ascontiguousarray(weights, dtype=GEOMETRY_DTYPE),
+        i32(pd.tets), i32(pd.tet_faces), i32(pd.faces), i32(pd.face_tets),
+        np.ascontiguousarray(pd.ray_dirs, dtype=GEOMETRY_DTYPE), i32(pd.point_tets.offsets),
+        i32(pd.point_tets.indices), i32(pd.point_faces.offsets), i32(pd.point_faces.indices),
+        i32(pd.point_neighbors.offsets), i32(pd.point_neighbors.indices), int(num_threads))
+
+
+def _mask(active) -> np.ndarray:
+    return np.zeros(0, np.uint8) if active is None else np.ascontiguousarray(active, dtype=np.uint8)
+
+
+#: Hint entry asking the Delta kernels for the full search (others are reused: the coherent pass).
+SEARCH: int = -2
+
+
+def _hint(hint) -> np.ndarray:
+    return np.zeros(0, INDEX_DTYPE) if hint is None else _i32(hint)
+
+
+def existing_delta_forward(diagram, face_ids, cache_offsets, cache_indices, ray_length: float, hint=None,
+                           num_threads: int = 0):
+    """((K, 3) int32 chosen neighbour per face vertex (-1: none), (K, 3) float64 delta (ray_length where
+    none)) for the WDT faces face_ids (K,). hint: None, or (K, 3) ints, SEARCH or the neighbour to reuse.
+    num_threads: 0 = OpenMP default above a size threshold."""
+    return _native.existing_delta_forward(diagram, _i32(face_ids).reshape(-1), _i32(cache_offsets),
+                                          _i32(cache_indices), float(ray_length), _hint(hint), int(num_threads))
+
+
+def existing_delta_backward(diagram, face_ids, neighbour, grad, active, ray_length: float, num_threads: int = 0):
+    """((N, 3), (N,)) float64 gradients of sum(grad * delta) over the rows with active (K,) bool set (None:
+    all rows); neighbour (K, 3) from the forward."""
+    return _native.existing_delta_backward(diagram, _i32(face_ids).reshape(-1), _i32(neighbour),
+                                           np.ascontiguousarray(grad, dtype=GEOMETRY_DTYPE), _mask(active),
+                                           float(ray_length), int(num_threads))
+
+
+def candidate_delta_forward(diagram, cand, ray_length: float, hint=None, num_threads: int = 0):
+    """((C, 3) int32 nearest cell edge (a WDT face id, -1: none), (C, 3) uint8 line crosses the cell,
+    (C, 3) float64 delta) for candidate faces cand (C, 3) not in the WDT. hint: None, or (C, 3) ints,
+    SEARCH or the edge to reuse."""
+    return _native.candidate_delta_forward(diagram, _i32(cand), float(ray_length), _hint(hint), int(num_threads))
+
+
+def csr_rows_changed(a_offsets, a_indices, b_offsets, b_indices) -> np.ndarray:
+    """(rows,) bool, True where row r of CSR a differs from row r of CSR b."""
+    return _native.csr_rows_changed(_i32(a_offsets), _i32(a_indices), _i32(b_offsets), _i32(b_indices)).astype(bool)
+
+
+def candidate_delta_backward(diagram, cand, edge, crosses, grad, active, num_threads: int = 0):
+    """((N, 3), (N,)) float64 gradients of sum(grad * delta) over the rows with active (C,) bool set (None:
+    all rows); edge and crosses (C, 3) from the forward."""
+    return _native.candidate_delta_backward(diagram, _i32(cand), _i32(edge),
+                                            np.ascontiguousarray(crosses, dtype=np.uint8),
+                                            np.ascontiguousarray(grad, dtype=GEOMETRY_DTYPE), _mask(active),
+                                            int(num_threads))
+
+
+# ----------------------------------------------------------------------------------------------------------
 # Renderers (dmesh/render.py). Letters: N vertices, F faces, T tets, H x W pixels, K fragments.
 # ----------------------------------------------------------------------------------------------------------
 
@@ -206,3 +273,84 @@ def tet_render_backward(opacity, frag_face, frag_diffuse, frag_depth, pix_range,
         _f32(opacity), _i32(frag_face), _f32(frag_diffuse),
         _f32(frag_depth), _i32(pix_range), _f32(grad_diffuse),
         _f32(grad_depth), _f32(grad_alpha), int(num_threads))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Expected Chamfer, target -> DMesh term (dmesh/losses/chamfer.py). Letters: G target points, S samples on
+# the DMesh, K candidates per target row. Geometry goes in as float64 or float32 (the `dtype` argument).
+# ----------------------------------------------------------------------------------------------------------
+
+def _as_array(a) -> np.ndarray:
+    return a.detach().cpu().numpy() if hasattr(a, "detach") else np.asarray(a)
+
+
+def _chamfer_inputs(fn: str, target, points, prob, face, knn, dtype) -> tuple:
+    dtype = np.dtype(dtype)
+    if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"{fn}: dtype must be float32 or float64, got {dtype}")
+    t = np.ascontiguousarray(_as_array(target), dtype=dtype)
+    p = np.ascontiguousarray(_as_array(points), dtype=dtype)
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise ValueError(f"{fn}: target must have shape (G, 3), got {t.shape}")
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"{fn}: points must have shape (S, 3), got {p.shape}")
+    pr = np.ascontiguousarray(_as_array(prob), dtype=dtype)
+    if pr.shape != (len(p),):
+        raise ValueError(f"{fn}: prob must have shape ({len(p)},) like points, got {pr.shape}")
+    f = _as_array(face)
+    if f.shape != (len(p),):
+        raise ValueError(f"{fn}: face must have shape ({len(p)},) like points, got {f.shape}")
+    if f.dtype != INDEX_DTYPE and len(f) and (f.min() < 0 or f.max() > np.iinfo(INDEX_DTYPE).max):
+        raise ValueError(f"{fn}: face ids must lie in [0, 2^31), got [{f.min()}, {f.max()}]")
+    f = np.ascontiguousarray(f, dtype=INDEX_DTYPE)
+    # knn values are checked against [0, S) by the kernel (int64 ids from a k-d tree are below S < 2^31).
+    k = np.ascontiguousarray(_as_array(knn), dtype=INDEX_DTYPE)
+    if k.ndim != 2 or len(k) != len(t):
+        raise ValueError(f"{fn}: knn must have shape ({len(t)}, K) like target, got {k.shape}")
+    return t, p, pr, f, k
+
+
+def expected_chamfer_forward(target, points, prob, face, knn, num_threads: int = 0,
+                             dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """Expected nearest distance per target row (native/src/expected_chamfer.h).
+
+    Args:
+        target: (G, 3); points: (S, 3); prob: (S,) floats, converted to `dtype` (float64 or float32).
+        face: (S,) ints >= 0, face id of each sample; knn: (G, K) ints in [0, S), each row's sample ids sorted
+            by distance. num_threads: OpenMP threads (0: the OpenMP default).
+    Returns:
+        (expected (G,) float64, residual (G,) float64).
+    """
+    return _native.expected_chamfer_forward(*_chamfer_inputs("expected_chamfer_forward", target, points, prob,
+                                                             face, knn, dtype), int(num_threads))
+
+
+def expected_chamfer_backward(target, points, prob, face, knn, grad_expected, num_threads: int = 0,
+                              dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients of sum_g grad_expected[g] * expected[g] for the forward's inputs.
+
+    Args: as `expected_chamfer_forward`, plus grad_expected: (G,) floats.
+    Returns:
+        (grad_points (S, 3), grad_prob (S,)) in `dtype`; byte-identical for any num_threads.
+    """
+    fn = "expected_chamfer_backward"
+    t, p, pr, f, k = _chamfer_inputs(fn, target, points, prob, face, knn, dtype)
+    w = np.ascontiguousarray(_as_array(grad_expected), dtype=np.float64)
+    if w.shape != (len(t),):
+        raise ValueError(f"{fn}: grad_expected must have shape ({len(t)},) like target, got {w.shape}")
+    return _native.expected_chamfer_backward(t, p, pr, f, k, w, int(num_threads))
+
+
+def knn_search(data, queries, k: int, num_threads: int = 0, dtype=np.float64) -> np.ndarray:
+    """(Q, k) int32 ids of the k nearest data points of every query, nearest first, exact, ties to the smaller
+    id (independent of num_threads). data: (D, 3), queries: (Q, 3) floats, converted to `dtype`; k <= D."""
+    fn = "knn_search"
+    d = np.ascontiguousarray(_as_array(data), dtype=dtype)
+    q = np.ascontiguousarray(_as_array(queries), dtype=dtype)
+    if d.ndim != 2 or d.shape[1] != 3:
+        raise ValueError(f"{fn}: data must have shape (D, 3), got {d.shape}")
+    if q.ndim != 2 or q.shape[1] != 3:
+        raise ValueError(f"{fn}: queries must have shape (Q, 3), got {q.shape}")
+    if not 0 <= int(k) <= len(d):
+        raise ValueError(f"{fn}: k must be in [0, {len(d)}] (the number of data points), got {k}")
+    return _native.knn_search(d, q, int(k), int(num_threads))

@@ -2,9 +2,12 @@
 
 Letters: N points, T tets, F faces of the current WDT, C candidate faces not in the WDT.
 
-One pass: WDT -> power diagram -> neighbour cache and candidates -> native argmin searches (discrete,
-no gradient) -> torch recomputation of the chosen distances (gradients reach positions and weights
-through bisector planes, orthocentres and hull-ray directions) -> Delta -> Lambda.
+One pass: WDT -> power diagram -> neighbour cache and candidates -> per-vertex distances -> Delta ->
+Lambda. The per-vertex distances come from one fused native kernel per kind of face (argmin search and
+distance in one forward call, analytic gradient in one backward call, `native/src/delta_recompute.h`);
+the argmin indices are constants and gradients reach positions and weights through bisector planes,
+orthocentres, dual lines and hull-ray directions. `ProbabilityConfig.impl = "reference"` selects the torch
+recomputation of `dmesh.reference.probability` instead (same values and gradients, several times slower).
 
 - Faces of the WDT: Delta = mean over the 3 vertices i of the distance from the sample point of the face's
   dual edge (midpoint, or `ray_length` out along a hull ray) to the nearest bisector plane H(i, j) with j a
@@ -17,11 +20,18 @@ through bisector planes, orthocentres and hull-ray directions) -> Delta -> Lambd
   (softmin weights detached); Lambda = Lambda_wdt * Lambda_real. Optionally (paper Eq. 10) Lambda_wdt is
   multiplied by the power-cell existence factor min_i sigmoid(alpha_pc (sum_F delta_i(F) - eps_pc)).
 
-Cost control (a deviation from upstream, `ProbabilityConfig.active_band`): every Delta is computed exactly
-in the native searches, but only faces that can carry a gradient are recomputed in torch: WDT faces below
-Lambda_wdt's clamp (Delta < 10/alpha) and non-WDT faces with Delta > -active_band/alpha (Lambda_wdt >
-sigmoid(-10) = 4.5e-5 for the default band of 10). The others keep their exact values without a gradient.
-`active_band=None` recomputes every face (exact gradients everywhere; `delta()` always does).
+Cost control (deviations from upstream):
+- `ProbabilityConfig.active_band`: every Delta is computed exactly, but only faces that can carry a
+  gradient get one: WDT faces below Lambda_wdt's clamp (Delta < 10/alpha) and non-WDT faces with
+  Delta > -active_band/alpha (Lambda_wdt > sigmoid(-10) = 4.5e-5 for the default band of 10). The others
+  keep their exact values without a gradient. `active_band=None` differentiates every face (`delta()`
+  always does).
+- `ProbabilityConfig.full_search_every` = k > 1 (the coherent pass, native only): the argmin searches run
+  every k passes; in between, argmins whose neighbourhood did not change are reused and only their
+  distances recomputed (see `_Coherence`). Values then drift from a full search where an argmin would
+  have switched; k = 1 (the default) always searches.
+- Lambda is computed from the per-vertex distances in one NumPy pass (`_Lambda`), not a dozen
+  multi-threaded torch ops over every face.
 """
 from __future__ import annotations
 
@@ -33,9 +43,16 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
-from dmesh import geometry, native
+from torch.autograd.function import once_differentiable
+
+from dmesh import native
 from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
+from dmesh.reference import probability as ref_prob
+from dmesh.reference.probability import dual_edges  # noqa: F401 (kept importable from here)
 from dmesh.wdt import Csr, PowerDiagram, face_keys, triangulate
+
+#: Implementations of the per-vertex distances: fused native kernels, or the torch reference.
+IMPLS = ("native", "reference")
 
 
 @dataclass(frozen=True)
@@ -53,11 +70,19 @@ class ProbabilityConfig:
     power_cell_factor: bool = False  # multiply by the power-cell existence factor (paper Eq. 10)
     alpha_pc: float = 1000.0       # sigmoid sharpness of the power-cell factor
     eps_pc: float = 1e-4           # threshold of the power-cell factor
+    impl: str = "native"           # per-vertex distances: "native" (fused kernels) or "reference" (torch)
+    # native: search argmins every k passes, reuse them in between (1: always). 1 by measurement: in the
+    # point-cloud phase 1 (62K points, lr 3e-4) over half the points change WDT neighbours every step, so
+    # reuse covers 1-4% of the vertex slots, saves no time and drifts (issue 13).
+    full_search_every: int = 1
 
     def __post_init__(self):
         for name in ("alpha_wdt", "alpha_real", "ray_length", "domain_scale", "alpha_pc"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ProbabilityConfig.{name} must be positive, got {getattr(self, name)}")
+        _check_impl(self.impl)
+        if self.full_search_every < 1:
+            raise ValueError(f"ProbabilityConfig.full_search_every must be >= 1, got {self.full_search_every}")
         if self.knn_interval < 0 or self.knn_k < 2:
             raise ValueError("ProbabilityConfig: knn_interval must be >= 0 and knn_k >= 2")
 
@@ -70,132 +95,107 @@ class ProbabilityConfig:
         return self.ray_length * self.domain_scale
 
 
-@dataclass
-class DualEdges:
-    """Power-diagram edges of some WDT faces, recomputed in torch (float64, differentiable).
+class _ExistingDeltas(torch.autograd.Function):
+    """(K, 3) float64 per-vertex delta of WDT faces: fused native search and distances, native backward."""
 
-    Attributes:
-        start: (K, 3) orthocentre of the face's first tet.
-        end: (K, 3) orthocentre of the second tet, or the unit outward ray direction for hull faces.
-        sample: (K, 3) midpoint of a segment, or start + ray_length * direction for a ray.
-        is_ray: (K,) bool.
-    """
+    @staticmethod
+    def forward(ctx, points, weights, diagram, neighbours, face_ids, ray_length, upper, hint, record):
+        j, dist = native.existing_delta_forward(diagram, face_ids, neighbours.offsets, neighbours.indices,
+                                                ray_length, hint)
+        if record is not None:
+            record["neighbour"] = j
+        # Rows whose mean delta reaches `upper` keep their value without a gradient (see existing_deltas).
+        active = None if upper is None else _row_mean(dist) < upper
+        ctx.saved = (diagram, face_ids, j, active, ray_length, points.dtype, weights.dtype)
+        return torch.from_numpy(dist)
 
-    start: torch.Tensor
-    end: torch.Tensor
-    sample: torch.Tensor
-    is_ray: torch.Tensor
-
-
-def dual_edges(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, face_ids: np.ndarray,
-               ray_length: float) -> DualEdges:
-    """Recomputes the dual edges of WDT faces `face_ids` ((K,) ints) in torch from (points, weights) and the
-    diagram's combinatorics; only the orthocentres of their tets are computed."""
-    face_ids = np.asarray(face_ids, dtype=np.int64)
-    ft = pd.face_tets[face_ids]
-    tets, inverse = np.unique(np.maximum(ft, 0), return_inverse=True)
-    inverse = torch.from_numpy(inverse.reshape(-1, 2))
-    cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets[tets]).long())
-    is_ray = torch.from_numpy(pd.is_hull[face_ids])
-    start = cc[inverse[:, 0]]
-    end = cc[inverse[:, 1]]
-    hull = np.flatnonzero(pd.is_hull[face_ids])
-    if len(hull):
-        n = geometry.face_normals(points, torch.from_numpy(pd.faces[face_ids[hull]]).long())
-        sign = torch.sign((n.detach() * torch.from_numpy(pd.ray_dirs[face_ids[hull]])).sum(-1))
-        sign = torch.where(sign == 0, torch.ones_like(sign), sign)
-        end = end.index_put((torch.from_numpy(hull),), n * sign[:, None])
-    sample = torch.where(is_ray[:, None], start + ray_length * end, 0.5 * (start + end))
-    return DualEdges(start, end, sample, is_ray)
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad):
+        # One gradient per forward input: points, weights, then None for diagram, neighbours, face_ids,
+        # ray_length, upper, hint, record.
+        diagram, face_ids, j, active, ray_length, p_dtype, w_dtype = ctx.saved
+        gp, gw = native.existing_delta_backward(diagram, face_ids, j, grad.numpy(), active, ray_length)
+        return (torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), *([None] * 7))
 
 
-def _numpy_edges(pd: PowerDiagram, ray_length: float):
-    """(F, 3) start, (F, 3) end (ray direction for hull faces), (F, 3) sample of every dual edge (float64)."""
-    start = pd.orthocentres[pd.face_tets[:, 0]]
-    hull = pd.is_hull[:, None]
-    end = np.where(hull, pd.ray_dirs, pd.orthocentres[np.maximum(pd.face_tets[:, 1], 0)])
-    sample = np.where(hull, start + ray_length * end, 0.5 * (start + end))
-    return start, end, sample
+class _CandidateDeltas(torch.autograd.Function):
+    """(C, 3) float64 per-vertex line-to-cell distance of candidates: fused native search and distances,
+    native backward."""
+
+    @staticmethod
+    def forward(ctx, points, weights, diagram, cand, ray_length, band, hint, record):
+        edge, crosses, dist = native.candidate_delta_forward(diagram, cand, ray_length, hint)
+        if record is not None:
+            record["edge"] = edge
+        active = None if band is None else _row_mean(dist) < band
+        ctx.saved = (diagram, cand, edge, crosses, active, points.dtype, weights.dtype)
+        return torch.from_numpy(dist)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad):
+        # One gradient per forward input: points, weights, then None for diagram, cand, ray_length, band,
+        # hint, record.
+        diagram, cand, edge, crosses, active, p_dtype, w_dtype = ctx.saved
+        gp, gw = native.candidate_delta_backward(diagram, cand, edge, crosses, grad.numpy(), active)
+        return (torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), *([None] * 6))
+
+
+def delta_diagram(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram):
+    """The native handle the fused kernels share in one pass: `pd`'s combinatorics with the geometry
+    recomputed from (points, weights)."""
+    p = native.as_points(points)
+    return native.delta_diagram(p, native.as_weights(weights, len(p)), pd)
+
+
+def _check_impl(impl: str) -> None:
+    if impl not in IMPLS:
+        raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
 
 
 def existing_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, neighbours: Csr,
                     ray_length: float, upper: float | None = None,
-                    face_ids: np.ndarray | None = None) -> torch.Tensor:
+                    face_ids: np.ndarray | None = None, impl: str = "native", diagram=None, hint=None,
+                    record: dict | None = None) -> torch.Tensor:
     """(K, 3) float64 per-vertex delta of WDT faces `face_ids` ((K,) ints; None: all F faces): distance of
     the face's dual-edge sample to the nearest cached bisector plane of the vertex's reduced cell;
     `ray_length` where a vertex has no such plane.
 
-    Faces whose mean delta is at least `upper` (where Lambda_wdt's clamp stops every gradient) keep the
-    native value without a gradient; the others are recomputed in torch.
+    `pd` must be the power diagram of (points, weights). Faces whose mean delta is at least `upper` (where
+    Lambda_wdt's clamp stops every gradient) keep their value without a gradient. `impl`: "native" (fused
+    kernel) or "reference" (native search, torch recomputation; `dmesh.reference.probability`). Native only:
+    `diagram`, this pass's `delta_diagram` (made here when None); `hint`, None or (K, 3) ints, per vertex
+    `native.SEARCH` or the neighbour to reuse without searching (the coherent pass); `record`, a dict that
+    receives the chosen neighbours as record["neighbour"] ((K, 3) int32, -1: none).
     """
-    p = native.as_points(points)
-    w = native.as_weights(weights, len(p))
-    ids = np.arange(len(pd.faces)) if face_ids is None else np.asarray(face_ids, dtype=np.int64)
-    faces_np = pd.faces if face_ids is None else pd.faces[ids]
-    start = pd.orthocentres[pd.face_tets[ids, 0]]
-    hull = pd.is_hull[ids, None]
-    other = pd.orthocentres[np.maximum(pd.face_tets[ids, 1], 0)]
-    sample = np.where(hull, start + ray_length * pd.ray_dirs[ids], 0.5 * (start + other))
-    j, dist = native.nearest_planes_raw(p, w, faces_np, sample, neighbours.offsets, neighbours.indices)
-    dist = np.where(j >= 0, dist, ray_length)
-    out = torch.from_numpy(dist)
-    active = np.arange(len(ids)) if upper is None else np.flatnonzero(dist.mean(1) < upper)
-    if len(active) == 0:
-        return out
-    edges = dual_edges(points, weights, pd, ids[active], ray_length)
-    faces = torch.from_numpy(faces_np[active]).long()
-    jt = torch.from_numpy(j[active]).long()
-    valid = jt >= 0
-    jj = torch.where(valid, jt, faces)  # a harmless stand-in index where there is none, masked below
-    d = geometry.bisector_distance(points[faces], weights[faces], points[jj], weights[jj],
-                                   edges.sample[:, None, :].expand(-1, 3, -1))
-    d = torch.where(valid, d, torch.full_like(d, ray_length))
-    return out.index_put((torch.from_numpy(active),), d)
+    _check_impl(impl)
+    if impl == "reference":
+        return ref_prob.existing_deltas(points, weights, pd, neighbours, ray_length, upper, face_ids)
+    ids = np.arange(len(pd.faces), dtype=np.int32) if face_ids is None else np.asarray(face_ids)
+    diagram = delta_diagram(points, weights, pd) if diagram is None else diagram
+    return _ExistingDeltas.apply(points, weights, diagram, neighbours, ids.astype(np.int32, copy=False),
+                                 float(ray_length), upper, hint, record)
 
 
 def nonexisting_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, faces: np.ndarray,
-                       ray_length: float, band: float | None = None) -> torch.Tensor:
+                       ray_length: float, band: float | None = None, impl: str = "native",
+                       diagram=None, hint=None, record: dict | None = None) -> torch.Tensor:
     """(C, 3) float64 per-vertex distance between each candidate's dual line and the vertex's power cell
     (0 where the line crosses it). Candidates must not be WDT faces and their vertices must own cells.
     Collinear or coincident candidates get `ray_length` (no gradient). Faces whose mean distance is at
-    least `band` keep the native value without a gradient (Lambda_wdt < sigmoid(-alpha band) there)."""
-    out = torch.full((len(faces), 3), float(ray_length), dtype=torch.float64)
+    least `band` keep their value without a gradient (Lambda_wdt < sigmoid(-alpha band) there). `impl` as in
+    `existing_deltas`; so are `diagram`, `hint` (per vertex the cell edge, a WDT face id, to reuse) and
+    `record` (receives record["edge"], (C, 3) int32 nearest cell edges, -1 where none or crossing)."""
+    _check_impl(impl)
+    if impl == "reference":
+        return ref_prob.nonexisting_deltas(points, weights, pd, faces, ray_length, band)
+    faces = np.asarray(faces).reshape(-1, 3)
     if len(faces) == 0:
-        return out
-    p64 = native.as_points(points)
-    w64 = native.as_weights(weights, len(p64))
-    e1 = p64[faces[:, 1]] - p64[faces[:, 0]]
-    e2 = p64[faces[:, 2]] - p64[faces[:, 0]]
-    area2 = (np.cross(e1, e2) ** 2).sum(1)
-    good = np.flatnonzero(area2 > 1e-12 * (e1 ** 2).sum(1) * (e2 ** 2).sum(1))
-    if len(good) == 0:
-        return out
-    fg = np.ascontiguousarray(faces[good], dtype=np.int32)
-    with torch.no_grad():
-        origin, direction, _ = geometry.dual_lines(torch.from_numpy(p64), torch.from_numpy(w64),
-                                                   torch.from_numpy(fg).long())
-    start, end, _ = _numpy_edges(pd, ray_length)
-    edge, crosses, dist = native.nearest_cell_edges_raw(
-        p64, w64, fg, origin.numpy(), direction.numpy(), pd.point_faces.offsets, pd.point_faces.indices,
-        start, end, pd.is_hull.astype(np.uint8), pd.point_neighbors.offsets, pd.point_neighbors.indices)
-    dist = np.where((edge >= 0) | (crosses > 0), dist, ray_length)
-    out = out.index_put((torch.from_numpy(good),), torch.from_numpy(dist))
-    sel = np.arange(len(good)) if band is None else np.flatnonzero(dist.mean(1) < band)
-    # Only elements with a gradient are recomputed: an edge was chosen and the line misses the cell.
-    sel = sel[((edge[sel] >= 0) & (crosses[sel] == 0)).any(1)]
-    if len(sel) == 0:
-        return out
-    o, u, _ = geometry.dual_lines(points, weights, torch.from_numpy(fg[sel]).long())
-    et = edge[sel]
-    has_edge = et >= 0
-    used, inverse = np.unique(np.maximum(et, 0), return_inverse=True)
-    edges = dual_edges(points, weights, pd, used, ray_length)
-    inv = torch.from_numpy(inverse.reshape(-1, 3))
-    d = geometry.line_segment_distance(o[:, None, :].expand(-1, 3, -1), u[:, None, :].expand(-1, 3, -1),
-                                       edges.start[inv], edges.end[inv], edges.is_ray[inv])
-    keep = torch.from_numpy(has_edge & (crosses[sel] == 0))
-    d = torch.where(keep, d, torch.from_numpy(dist[sel]))
-    return out.index_put((torch.from_numpy(good[sel]),), d)
+        return torch.full((0, 3), float(ray_length), dtype=torch.float64)
+    diagram = delta_diagram(points, weights, pd) if diagram is None else diagram
+    return _CandidateDeltas.apply(points, weights, diagram, faces.astype(np.int32, copy=False),
+                                  float(ray_length), band, hint, record)
 
 
 def dmin(values: torch.Tensor, alpha: float) -> torch.Tensor:
@@ -208,6 +208,70 @@ def dmin(values: torch.Tensor, alpha: float) -> torch.Tensor:
 def lambda_wdt(delta: torch.Tensor, alpha: float) -> torch.Tensor:
     """sigmoid(alpha * min(delta, 10 / alpha)): saturates at sigmoid(10) for faces that surely exist."""
     return torch.sigmoid(alpha * delta.clamp_max(10.0 / alpha))
+
+
+class _Lambda(torch.autograd.Function):
+    """Delta, Lambda_wdt, Lambda_real and Lambda of the scored faces (WDT faces, then candidates) from the
+    per-vertex distances, in one NumPy pass: the same values as `lambda_wdt` and `dmin` in torch, without a
+    dozen multi-threaded torch ops (and their thread barriers) over every face, forward and backward."""
+
+    @staticmethod
+    def forward(ctx, pv_wdt, pv_non, reals, faces, alpha, alpha_real, dtype):
+        # Column arithmetic throughout: NumPy's reductions along a length-3 axis are several times slower.
+        nw = len(pv_wdt)
+        delta = np.concatenate([_row_mean(pv_wdt.detach().numpy()), -_row_mean(pv_non.detach().numpy())])
+        upper = 10.0 / alpha
+        passes = delta <= upper                              # where the clamp lets the gradient through
+        with np.errstate(over="ignore"):  # z <= 10; exp(-z) overflows to inf only where sigmoid(z) is 0
+            s = 1.0 / (1.0 + np.exp(-alpha * np.minimum(delta, upper)))
+        if reals is None:
+            wts = None
+            p_real = np.ones_like(s)
+        else:
+            rv = reals.detach().numpy().astype(np.float64)
+            r = [rv[faces[:, k]] for k in range(3)]
+            rmin = np.minimum(np.minimum(r[0], r[1]), r[2])
+            e = [np.exp(-alpha_real * (rk - rmin)) for rk in r]       # softmin weights (no gradient)
+            total = e[0] + e[1] + e[2]
+            wts = [ek / total for ek in e]
+            p_real = wts[0] * r[0] + wts[1] * r[1] + wts[2] * r[2]
+        ctx.saved = (nw, passes, s, p_real, wts, faces, None if reals is None else (len(reals), reals.dtype),
+                     alpha, pv_wdt.dtype, pv_non.dtype)
+        outs = (delta, s, p_real, s * p_real)
+        return tuple(torch.from_numpy(np.ascontiguousarray(o, dtype=_numpy_dtype(dtype))) for o in outs)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_delta, g_wdt, g_real, g_prob):
+        # One gradient per forward input: pv_wdt, pv_non, reals, then None for faces, alpha, alpha_real,
+        # dtype.
+        nw, passes, s, p_real, wts, faces, reals_info, alpha, dt_w, dt_n = ctx.saved
+        g_delta, g_wdt, g_real, g_prob = (g.numpy().astype(np.float64) for g in (g_delta, g_wdt, g_real, g_prob))
+        gd = g_delta + np.where(passes, (g_wdt + g_prob * p_real) * (alpha * s * (1.0 - s)), 0.0)
+        gd3 = gd / 3.0
+        g_pv_w = np.empty((nw, 3))
+        g_pv_w[:] = gd3[:nw, None]
+        g_pv_n = np.empty((len(gd3) - nw, 3))
+        g_pv_n[:] = -gd3[nw:, None]
+        g_reals = None
+        if reals_info is not None and ctx.needs_input_grad[2]:
+            n, r_dtype = reals_info
+            gr = g_real + g_prob * s
+            # One bincount (a fixed, sequential order: deterministic) over the three vertex columns.
+            ids = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])
+            g_reals = torch.from_numpy(np.bincount(ids, np.concatenate([gr * w for w in wts]), minlength=n))
+            g_reals = g_reals.to(r_dtype)
+        return (torch.from_numpy(g_pv_w).to(dt_w), torch.from_numpy(g_pv_n).to(dt_n), g_reals, None, None, None,
+                None)
+
+
+def _row_mean(a: np.ndarray) -> np.ndarray:
+    """(M,) mean of the rows of a (M, 3) array: (a0 + a1 + a2) / 3, the order torch's mean(1) adds in."""
+    return (a[:, 0] + a[:, 1] + a[:, 2]) / 3.0
+
+
+def _numpy_dtype(dtype: torch.dtype):
+    return torch.empty(0, dtype=dtype).numpy().dtype
 
 
 @dataclass
@@ -232,17 +296,78 @@ class FaceProbabilities:
 
 
 class ProbabilityState:
-    """Candidate faces and the neighbour cache of one optimisation phase, plus a pass counter."""
+    """Candidate faces and the neighbour cache of one optimisation phase, a pass counter, and the last pass's
+    argmins for the coherent pass."""
 
     def __init__(self, num_points: int, config: ProbabilityConfig | None = None):
         self.config = config or ProbabilityConfig()
         self.cache = NeighbourCache(num_points)
         self.candidates = CandidateFaces(num_points)
         self.passes = 0
+        self.coherence = _Coherence()
 
     @property
     def num_points(self) -> int:
         return self.cache.num_points
+
+
+class _Coherence:
+    """The coherent pass (`ProbabilityConfig.full_search_every` = k > 1): between full searches, every
+    per-vertex argmin whose neighbourhood did not change is reused and only its distance recomputed.
+
+    Reused: for a WDT face still in the WDT (same key) whose vertices kept their WDT neighbours, the bisector
+    neighbour of each vertex whose cached neighbour list is unchanged; for a scored candidate seen last pass
+    whose vertices kept their WDT neighbours (so their cells' combinatorics), each vertex's nearest cell
+    edge, when that edge's face still exists.
+    Searched: everything else, and everything on every k-th pass. Argmins are keyed by face keys, so they
+    survive the renumbering of faces between triangulations. The crossing test always runs.
+    """
+
+    def __init__(self):
+        self.age = 0                # passes since the last full search
+        self.wdt_keys = None        # (F',) sorted int64 keys of last pass's WDT faces
+        self.wdt_j = None           # (F', 3) int32 their chosen neighbours, rows in key order
+        self.cand_keys = None       # (C',) sorted int64 keys of last pass's scored candidates
+        self.cand_edges = None      # (C', 3) int64 key of each vertex's nearest cell edge (a face), -1: none
+        self.nbrs = None            # last pass's WDT neighbour lists (Csr)
+        self.cache_lengths = None   # (N,) last pass's cache row lengths
+
+    def hints(self, every: int, pd: PowerDiagram, cache: Csr, sorted_keys: np.ndarray, order: np.ndarray,
+              cand: np.ndarray, cand_keys: np.ndarray):
+        """((F, 3), (C, 3)) int32 hints for this pass's WDT faces and candidates, or (None, None) to search."""
+        if every <= 1 or self.wdt_keys is None or self.age + 1 >= every or len(sorted_keys) == 0:
+            return None, None
+        changed = native.csr_rows_changed(pd.point_neighbors.offsets, pd.point_neighbors.indices,
+                                          self.nbrs.offsets, self.nbrs.indices)
+        grown = np.diff(cache.offsets) != self.cache_lengths  # the cache only grows: same length, same row
+        fs = pd.faces[order]                                   # WDT faces in key order
+        pos = np.searchsorted(self.wdt_keys, sorted_keys).clip(max=len(self.wdt_keys) - 1)
+        near = changed[fs[:, 0]] | changed[fs[:, 1]] | changed[fs[:, 2]] | (self.wdt_keys[pos] != sorted_keys)
+        h = self.wdt_j[pos]
+        h[near[:, None] | grown[fs]] = native.SEARCH
+        hint_wdt = np.empty_like(h)
+        hint_wdt[order] = h
+        pos = np.searchsorted(self.cand_keys, cand_keys).clip(max=max(len(self.cand_keys) - 1, 0))
+        if len(self.cand_keys) == 0:
+            return hint_wdt, np.full(cand.shape, native.SEARCH, np.int32)
+        edge_keys = self.cand_edges[pos]
+        at = np.searchsorted(sorted_keys, edge_keys).clip(max=len(sorted_keys) - 1)
+        ok = (self.cand_keys[pos] == cand_keys)[:, None] & (edge_keys >= 0) & (sorted_keys[at] == edge_keys)
+        # The dual line depends on all three vertices: a change around any of them searches the whole face.
+        near = changed[cand[:, 0]] | changed[cand[:, 1]] | changed[cand[:, 2]]
+        hint_cand = np.where(ok & ~near[:, None], order[at], native.SEARCH).astype(np.int32)
+        return hint_wdt, hint_cand
+
+    def record(self, searched: bool, pd: PowerDiagram, cache: Csr, keys: np.ndarray, order: np.ndarray,
+               neighbour: np.ndarray, cand_keys: np.ndarray, edge: np.ndarray) -> None:
+        """Keeps this pass's argmins (neighbour (F, 3) by face id, edge (C, 3) WDT face ids)."""
+        self.age = 0 if searched else self.age + 1
+        self.wdt_keys = keys[order]
+        self.wdt_j = neighbour[order]
+        self.cand_keys = cand_keys
+        self.cand_edges = np.where(edge >= 0, keys[np.maximum(edge, 0)], -1)
+        self.nbrs = pd.point_neighbors
+        self.cache_lengths = np.diff(cache.offsets)
 
 
 @contextmanager
@@ -277,9 +402,12 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
         tri = triangulate(points, weights)
     with _stage(timings, "power_diagram"):
         pd = PowerDiagram(points, weights, tri.tets, tri.neighbors)
+    coherent = cfg.impl == "native" and cfg.full_search_every > 1
     with _stage(timings, "candidates"):
         cache = state.cache.update(pd.point_neighbors)
-        wdt_keys = np.sort(face_keys(pd.faces, n))
+        keys = face_keys(pd.faces, n)
+        order = np.argsort(keys) if coherent else None     # the coherent pass needs the face of each key
+        wdt_keys = keys[order] if coherent else np.sort(keys)
         state.candidates.add_sorted_keys(wdt_keys)
         if extra_candidates is not None:
             state.candidates.add(extra_candidates)
@@ -289,36 +417,56 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
             state.candidates.add(knn_triples(pd.points, r, ~pd.hidden, cfg.knn_k, cfg.knn_thresholds))
     state.passes += 1
 
+    with _stage(timings, "candidates"):
+        # Candidates not in the WDT with all three vertices owning a power cell (sorted by key).
+        ck = state.candidates.keys
+        pos = np.searchsorted(wdt_keys, ck).clip(max=len(wdt_keys) - 1)
+        cand_keys = ck[wdt_keys[pos] != ck]
+        cand = state.candidates.faces_of(cand_keys)
+        owned = ~(pd.hidden[cand[:, 0]] | pd.hidden[cand[:, 1]] | pd.hidden[cand[:, 2]])
+        cand, cand_keys = cand[owned], cand_keys[owned]
+        hint_wdt = hint_cand = None
+        if coherent:
+            hint_wdt, hint_cand = state.coherence.hints(cfg.full_search_every, pd, cache, wdt_keys, order, cand,
+                                                        cand_keys)
+        found = {} if coherent else None
+
     with _stage(timings, "existing"):
         # Above 10/alpha Lambda_wdt's clamp stops gradients; the power-cell factor needs them all.
         upper = None if cfg.power_cell_factor or cfg.active_band is None else 10.0 / cfg.alpha
-        per_vertex = existing_deltas(points, weights, pd, cache, cfg.ray, upper)
-        delta_wdt = per_vertex.mean(1)
+        diagram = delta_diagram(points, weights, pd) if cfg.impl == "native" else None
+        per_vertex = existing_deltas(points, weights, pd, cache, cfg.ray, upper, impl=cfg.impl, diagram=diagram,
+                                     hint=hint_wdt, record=found)
 
     with _stage(timings, "nonexisting"):
-        # Candidates not in the WDT with all three vertices owning a power cell.
-        ck = state.candidates.keys
-        pos = np.searchsorted(wdt_keys, ck).clip(max=len(wdt_keys) - 1)
-        cand = state.candidates.faces_of(ck[wdt_keys[pos] != ck])
-        cand = cand[~pd.hidden[cand].any(1)]
         band = None if cfg.active_band is None else cfg.active_band / cfg.alpha
-        delta_non = -nonexisting_deltas(points, weights, pd, cand, cfg.ray, band).mean(1)
+        per_vertex_non = nonexisting_deltas(points, weights, pd, cand, cfg.ray, band, cfg.impl, diagram,
+                                            hint=hint_cand, record=found)
+    if coherent:
+        state.coherence.record(hint_wdt is None, pd, cache, keys, order, found["neighbour"], cand_keys,
+                               found.get("edge", np.zeros((0, 3), np.int32)))
 
     t_prob = time.perf_counter()
-    faces = torch.from_numpy(np.concatenate([pd.faces.astype(np.int64), cand]))
-    delta = torch.cat([delta_wdt, delta_non])
+    faces_np = np.concatenate([pd.faces.astype(np.int64), cand])
+    faces = torch.from_numpy(faces_np)
     in_wdt = torch.zeros(len(faces), dtype=torch.bool)
     in_wdt[: len(pd.faces)] = True
-    p_wdt = lambda_wdt(delta, cfg.alpha)
-    if cfg.power_cell_factor:
-        p_wdt = p_wdt * _power_cell_factor(per_vertex, pd, faces, n, cfg)
-    if reals is None:
-        p_real = torch.ones_like(p_wdt)
-    else:
-        p_real = dmin(reals[faces].double(), cfg.alpha_real)
     dtype = points.dtype
-    out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
-                            (p_wdt * p_real).to(dtype), pd)
+    if cfg.impl == "native" and not cfg.power_cell_factor:
+        delta, p_wdt, p_real, prob = _Lambda.apply(per_vertex, per_vertex_non, reals, faces_np, cfg.alpha,
+                                                   cfg.alpha_real, dtype)
+        out = FaceProbabilities(faces, in_wdt, delta, p_wdt, p_real, prob, pd)
+    else:
+        delta = torch.cat([per_vertex.mean(1), -per_vertex_non.mean(1)])
+        p_wdt = lambda_wdt(delta, cfg.alpha)
+        if cfg.power_cell_factor:
+            p_wdt = p_wdt * _power_cell_factor(per_vertex, pd, faces, n, cfg)
+        if reals is None:
+            p_real = torch.ones_like(p_wdt)
+        else:
+            p_real = dmin(reals[faces].double(), cfg.alpha_real)
+        out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
+                                (p_wdt * p_real).to(dtype), pd)
     if timings is not None:
         timings["probabilities"] = timings.get("probabilities", 0.0) + time.perf_counter() - t_prob
     return out
@@ -334,7 +482,7 @@ def _power_cell_factor(per_vertex: torch.Tensor, pd: PowerDiagram, faces: torch.
     return a_pc[faces].min(dim=1).values
 
 
-def delta(points, weights, faces) -> torch.Tensor:
+def delta(points, weights, faces, impl: str = "native") -> torch.Tensor:
     """Delta(F) of the given faces for the current configuration.
 
     Triangulates internally; the neighbour cache is the current WDT's edges.
@@ -342,6 +490,7 @@ def delta(points, weights, faces) -> torch.Tensor:
     Args:
         points: (N, 3) float32 or float64 tensor (or array); weights: (N,) tensor (or array, or None).
         faces: (M, 3) ints, any vertex order.
+        impl: "native" (fused kernels) or "reference" (torch recomputation).
     Returns:
         (M,) tensor of the points' dtype, differentiable in points and weights: > 0 for faces of the WDT,
         <= 0 for other faces whose vertices own power cells, 0 for faces with a hidden vertex, and
@@ -362,11 +511,12 @@ def delta(points, weights, faces) -> torch.Tensor:
     out = torch.zeros(len(faces), dtype=torch.float64)
     in_wdt = np.flatnonzero(ids >= 0)
     if len(in_wdt):
-        per_vertex = existing_deltas(points, weights, pd, pd.point_neighbors, cfg.ray, face_ids=ids[in_wdt])
+        per_vertex = existing_deltas(points, weights, pd, pd.point_neighbors, cfg.ray, face_ids=ids[in_wdt],
+                                     impl=impl)
         out = out.index_put((torch.from_numpy(in_wdt),), per_vertex.mean(1))
     other = np.flatnonzero((ids < 0) & ~pd.hidden[faces].any(1))
     if len(other):
-        d = -nonexisting_deltas(points, weights, pd, faces[other], cfg.ray).mean(1)
+        d = -nonexisting_deltas(points, weights, pd, faces[other], cfg.ray, impl=impl).mean(1)
         out = out.index_put((torch.from_numpy(other),), d)
     return out.to(points.dtype)
 

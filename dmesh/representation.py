@@ -33,7 +33,8 @@ class DMesh:
 
     def __init__(self, points, weights=None, reals=None, config: ProbabilityConfig | None = None,
                  dtype: torch.dtype = torch.float32):
-        p = torch.as_tensor(np.asarray(points.detach() if torch.is_tensor(points) else points), dtype=dtype)
+        # A copy: the parameters move in place, and must not move the caller's array (or another DMesh).
+        p = torch.tensor(np.asarray(points.detach() if torch.is_tensor(points) else points), dtype=dtype)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must have shape (N, 3), got {tuple(p.shape)}")
         if len(p) < 4:
@@ -53,7 +54,7 @@ class DMesh:
 
     @staticmethod
     def _vector(v, n: int, name: str, dtype) -> torch.Tensor:
-        t = torch.as_tensor(np.asarray(v.detach() if torch.is_tensor(v) else v), dtype=dtype)
+        t = torch.tensor(np.asarray(v.detach() if torch.is_tensor(v) else v), dtype=dtype)
         if t.shape != (n,):
             raise ValueError(f"{name} must have shape ({n},), got {tuple(t.shape)}")
         if not torch.isfinite(t).all():

@@ -14,22 +14,9 @@ from datasets.capture import gl_problem as _gl_problem
 from dmesh import native
 from dmesh.reference.render import soft_render_naive, tet_render_naive
 from dmesh.render import Camera, soft_render, soft_render_views, tet_render, tet_render_views
+from helpers import assert_close
 
 OUTPUTS = ("diffuse", "depth", "alpha")
-
-
-def assert_close(actual, expected, atol: float, rtol: float = 0.0, what: str = ""):
-    """Max abs diff test that reports the worst element (STYLE rule 17)."""
-    a = np.asarray(actual.detach() if isinstance(actual, torch.Tensor) else actual, np.float64)
-    e = np.asarray(expected.detach() if isinstance(expected, torch.Tensor) else expected, np.float64)
-    assert a.shape == e.shape, f"{what}: shape {a.shape} != {e.shape}"
-    if a.size == 0:
-        return
-    err = np.abs(a - e)
-    tol = atol + rtol * np.abs(e).max()
-    k = np.unravel_index(int(np.argmax(err)), err.shape)
-    assert err.max() <= tol, (f"{what}: max abs diff {err.max():.3g} > {tol:.3g} at {k} "
-                              f"(actual {a[k]:.6g}, expected {e[k]:.6g})")
 
 
 def _camera(res: int = 32, eye=(0.3, 0.4, 2.0)) -> Camera:

@@ -14,11 +14,19 @@ three vertices are GT vertices are scored, with the margin loss of paper Appendi
 so faces already right by more than the margin m stop pulling. RE = recovered GT faces / GT faces and
 FP = false faces / WDT faces on GT vertices, on sorted unique triples. The run stops early when
 RE > `re_target` and FP < `fp_target`, and keeps the best-RE and best-FP states.
+
+Procedure:
+1. Each insertion period (`insert_every` steps) is one phase of `dmesh.recon.loop.Loop.run_phase`: the WDT
+   of the current points; points inserted on its unwanted faces (hidden inserted points dropped); a fresh
+   `BoundedAdam` over positions and weights at lr `lr` x `decay`^period, bound `update_bound` x the same,
+   per-point gradient clip `grad_clip`.
+2. Each step (`_Run.step`): re-triangulate, score the faces (the margin loss above), measure RE / FP and
+   keep the best states; stop before the update once the targets are met; otherwise backward and the
+   bounded update, then the GT vertices are put back within `max_perturb` of their start with weight 1.
 """
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
@@ -27,6 +35,8 @@ import torch
 
 from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
 from dmesh.probability import existing_deltas, nonexisting_deltas
+from dmesh.recon.loop import Loop, ReconstructionResult
+from dmesh.recon.optim import BoundedAdam, StepConfig
 from dmesh.wdt import PowerDiagram, face_keys, triangulate
 
 log = logging.getLogger(__name__)
@@ -37,7 +47,7 @@ class MeshToDMeshConfig:
     """Settings of the mesh-to-DMesh procedure (frame: mesh normalised to max vertex norm 0.8)."""
 
     steps: int = 20000            # maximum optimisation steps
-    lr: float = 1e-4              # Adam learning rate (positions and weights)
+    lr: float = 1e-4              # `BoundedAdam` learning rate (positions and weights)
     update_bound: float = 1e-5    # per-step bound on every coordinate and weight change
     max_perturb: float = 1e-2     # GT vertices stay within this of their start, per coordinate
     margin: float = 3e-4          # faces right by more than this stop pulling
@@ -47,7 +57,7 @@ class MeshToDMeshConfig:
     knn_every: int = 100          # add kNN triples on GT vertices every this many steps
     knn_k: int = 8                # neighbours for kNN triples
     decay: float = 1.0            # lr and update bound are multiplied by this after every insertion period
-    grad_clip: float = 0.1        # global gradient-norm clip
+    grad_clip: float = 0.1        # per-point gradient-norm clip (`BoundedAdam`: a position as a 3-vector, a weight)
     fp_accept: float = 0.005      # the kept state: highest RE among states with FP <= this (else best RE - FP)
     re_target: float = 0.999      # early stop when RE exceeds this ...
     fp_target: float = 0.01       # ... and FP is below this
@@ -92,11 +102,14 @@ class Snapshot:
     faces: np.ndarray     # (K, 3) int64 WDT faces on GT vertices in this state
 
 
-@dataclass
-class MeshToDMeshResult:
-    """Outcome of `mesh_to_dmesh`.
+@dataclass(kw_only=True)
+class MeshToDMeshResult(ReconstructionResult):
+    """Outcome of `mesh_to_dmesh` (`dmesh.recon.loop.ReconstructionResult`).
 
     Attributes:
+        mesh: `trimesh.Trimesh` of the final state: all points as vertices (GT vertices first, unreferenced
+            inserted points kept, so indices match `points`) and the recovered faces;
+        dmesh: the final `DMesh` (float64); center: zeros and scale: 1 (the input's frame);
         points: (N, 3) float64 final positions (GT vertices first); weights: (N,) float64;
         reals: (N,) float64 (1 for GT vertices, 0 for inserted points);
         faces: (K, 3) int64 recovered mesh faces (WDT faces on GT vertices) of the final state;
@@ -104,8 +117,10 @@ class MeshToDMeshResult:
         best_re, best_fp: `Snapshot`s of the highest RE and the lowest FP; best: the kept `Snapshot` (what
             the harness reports, like upstream's kept checkpoints): the highest RE among states with
             FP <= `fp_accept`, or, when no state qualifies, the highest RE - FP;
-        history: per-evaluation dicts (step, re, fp, loss, points);
-        timings: seconds per stage; stopped_early: whether the RE/FP targets were met.
+        history: one dict per step (step, steps (the insertion period's end), loss, re, fp, points,
+            inserted, seconds);
+        timings: seconds per stage ("insert", "wdt", "loss", "backward", "step", "total", "total_cpu");
+        info: counts; stopped_early: whether the RE/FP targets were met; config: the config as a dict.
     """
 
     points: np.ndarray
@@ -118,8 +133,6 @@ class MeshToDMeshResult:
     best_re: Snapshot
     best_fp: Snapshot
     best: Snapshot
-    history: list = field(default_factory=list)
-    timings: dict = field(default_factory=dict)
     stopped_early: bool = False
     config: dict = field(default_factory=dict)
 
@@ -159,12 +172,12 @@ class _Run:
     def __init__(self, vertices: np.ndarray, gt_faces: np.ndarray, cfg: MeshToDMeshConfig):
         self.cfg = cfg
         self.g = len(vertices)
-        self.start = vertices.copy()
+        self.start = torch.from_numpy(vertices.copy())
         self.gt_faces = gt_faces
         self.rng = np.random.default_rng(cfg.seed)
         self.points = torch.tensor(vertices, dtype=torch.float64)
         self.weights = torch.ones(self.g, dtype=torch.float64)
-        self.scale = 1.0  # current lr / update-bound factor (decays per insertion period)
+        self.pd: PowerDiagram | None = None  # the insertion's diagram, used by the period's first step
         self._reset_phase()
 
     @property
@@ -174,14 +187,29 @@ class _Run:
     def _reset_phase(self):
         self.points = self.points.detach().clone().requires_grad_(True)
         self.weights = self.weights.detach().clone().requires_grad_(True)
-        self.optim = torch.optim.Adam([self.points, self.weights], lr=self.cfg.lr * self.scale)
+        self.reals = (torch.arange(self.n) < self.g).double()  # not trained
         self.cache = NeighbourCache(self.n)
         self.candidates = CandidateFaces(self.n)
         self.candidates.add(self.gt_faces)
         self.gt_keys = np.sort(face_keys(self.gt_faces, self.n))
 
-    def insert_points(self, pd: PowerDiagram) -> int:
+    def optimizer(self, scale: float) -> BoundedAdam:
+        """The `BoundedAdam` of an insertion period: positions and weights, lr and bound times `scale`."""
+        cfg = self.cfg
+        step = StepConfig(lr=cfg.lr * scale, update_bound=cfg.update_bound * scale, grad_clip=cfg.grad_clip)
+        return BoundedAdam(self.points, self.weights, self.reals, step, train=("points", "weights"))
+
+    def diagram(self) -> PowerDiagram:
+        """The WDT of the current points (the insertion's, when it is fresh)."""
+        pd, self.pd = self.pd, None
+        if pd is None:
+            tri = triangulate(self.points, self.weights)
+            pd = PowerDiagram(self.points, self.weights, tri.tets, tri.neighbors)
+        return pd
+
+    def insert_points(self) -> int:
         """Drops hidden inserted points and inserts new ones on unwanted faces; returns how many."""
+        pd = self.diagram()
         unwanted = self._unwanted(pd)
         keep = np.ones(self.n, bool)
         keep[self.g:] = ~pd.hidden[self.g:]
@@ -200,6 +228,7 @@ class _Run:
         self.points = torch.tensor(np.concatenate([p, new]), dtype=torch.float64)
         self.weights = torch.tensor(np.concatenate([w, np.ones(len(new))]), dtype=torch.float64)
         self._reset_phase()
+        self.pd = self.diagram()
         return len(new)
 
     def _unwanted(self, pd: PowerDiagram) -> np.ndarray:
@@ -245,26 +274,12 @@ class _Run:
             loss = loss + (-d.mean(1)).clamp_min(-cfg.margin).sum()
         return loss, re, fp, pd.faces[on_gt].astype(np.int64)
 
-    def update(self, loss: torch.Tensor) -> None:
-        cfg = self.cfg
-        self.optim.zero_grad(set_to_none=True)
-        if loss.requires_grad:
-            loss.backward()
-        params = [self.points, self.weights]
-        for prm in params:
-            if prm.grad is not None:
-                prm.grad.nan_to_num_(0.0, 0.0, 0.0)
-        torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip)
-        before = [prm.detach().clone() for prm in params]
-        self.optim.step()
-        bound = cfg.update_bound * self.scale
+    def constrain(self, step: int) -> None:
+        """After an update: GT vertices within `max_perturb` of their start, with weight 1."""
+        bound = self.cfg.max_perturb
         with torch.no_grad():
-            for prm, old in zip(params, before):
-                prm.copy_(torch.maximum(torch.minimum(prm, old + bound), old - bound))
-            start = torch.from_numpy(self.start)
-            self.points[: self.g] = torch.maximum(torch.minimum(self.points[: self.g], start + cfg.max_perturb),
-                                                  start - cfg.max_perturb)
-            self.weights.clamp_(0.0, 1.0)
+            gt = self.points[: self.g]
+            gt.copy_(torch.maximum(torch.minimum(gt, self.start + bound), self.start - bound))
             self.weights[: self.g] = 1.0
 
 
@@ -320,66 +335,63 @@ def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
         vertices: (G, 3) float, distinct, already normalised (max vertex norm 0.8 is the convention).
         faces: (F, 3) ints; sorted and made unique here (back-to-back pairs collapse to one face).
         config: `MeshToDMeshConfig` (see `PRESETS`).
-        callback: called after every evaluation with a dict (step, re, fp, loss, points, inserted).
+        callback: called after every step with its record (step, loss, re, fp, points, inserted, ...).
     Returns:
         `MeshToDMeshResult`. Raises ValueError for a mesh without faces, NaN vertices or duplicates.
     """
+    import trimesh
+
+    from dmesh.representation import DMesh
+
     cfg = config or MeshToDMeshConfig()
     v, f = _validate(vertices, faces)
     run = _Run(v, f, cfg)
-    timings = {"wdt": 0.0, "loss": 0.0, "update": 0.0, "insert": 0.0}
-    history = []
-    best_re = best_fp = best = None
-    stopped = False
-    step = 0
-    re = fp = 0.0
-    recovered = np.zeros((0, 3), np.int64)
-    inserted = 0
-    for step in range(cfg.steps):
-        t0 = time.perf_counter()
-        tri = triangulate(run.points, run.weights)
-        pd = PowerDiagram(run.points, run.weights, tri.tets, tri.neighbors)
-        t1 = time.perf_counter()
-        timings["wdt"] += t1 - t0
-        if step % cfg.insert_every == 0:
-            run.scale = cfg.decay ** (step // cfg.insert_every)
-            inserted = run.insert_points(pd)
-            tri = triangulate(run.points, run.weights)
-            pd = PowerDiagram(run.points, run.weights, tri.tets, tri.neighbors)
-            timings["insert"] += time.perf_counter() - t1
-            log.debug("step %d: inserted %d points (%d in all)", step, inserted, run.n)
-        t2 = time.perf_counter()
-        knn = step % cfg.knn_every == 0
-        loss, re, fp, recovered = run.step(pd, knn)
-        t3 = time.perf_counter()
-        timings["loss"] += t3 - t2
+    loop = Loop(callback)
+    kept: dict = {"best_re": None, "best_fp": None, "best": None}
+    last = {"re": 0.0, "fp": 0.0, "faces": np.zeros((0, 3), np.int64), "inserted": 0}
+
+    def fit_step(step: int):
+        with loop.clock("wdt"):
+            pd = run.diagram()
+        with loop.clock("loss"):
+            loss, re, fp, recovered = run.step(pd, knn=step % cfg.knn_every == 0)
+        last.update(re=re, fp=fp, faces=recovered)
         snap = None
 
         def snapshot():
             return snap or Snapshot(step, re, fp, run.points.detach().numpy().copy(),
                                     run.weights.detach().numpy().copy(), recovered)
 
-        if best_re is None or re > best_re.re or (re == best_re.re and fp < best_re.fp):
-            best_re = snap = snapshot()
-        if best_fp is None or fp < best_fp.fp or (fp == best_fp.fp and re > best_fp.re):
-            best_fp = snap = snapshot()
-        if _better(re, fp, best, cfg.fp_accept):
-            best = snap = snapshot()
-        entry = {"step": step, "re": re, "fp": fp, "loss": float(loss.detach()), "points": run.n,
-                 "inserted": inserted}
-        history.append(entry)
-        if callback is not None:
-            callback(entry)
-        if re > cfg.re_target and fp < cfg.fp_target:
-            stopped = True
+        b = kept["best_re"]
+        if b is None or re > b.re or (re == b.re and fp < b.fp):
+            kept["best_re"] = snap = snapshot()
+        b = kept["best_fp"]
+        if b is None or fp < b.fp or (fp == b.fp and re > b.re):
+            kept["best_fp"] = snap = snapshot()
+        if _better(re, fp, kept["best"], cfg.fp_accept):
+            kept["best"] = snap = snapshot()
+        return loss, {"re": re, "fp": fp, "points": run.n, "inserted": last["inserted"]}
+
+    def converged(figures: dict) -> bool:
+        return figures["re"] > cfg.re_target and figures["fp"] < cfg.fp_target
+
+    stopped = False
+    for period, begin in enumerate(range(0, cfg.steps, cfg.insert_every)):
+        with loop.clock("insert"):
+            last["inserted"] = run.insert_points()
+        log.debug("step %d: inserted %d points (%d in all)", begin, last["inserted"], run.n)
+        end = min(begin + cfg.insert_every, cfg.steps)
+        stopped = loop.run_phase(fit_step, run.optimizer(cfg.decay ** period), end, begin,
+                                 after_step=run.constrain, stop=converged)
+        if stopped:
             break
-        run.update(loss)
-        timings["update"] += time.perf_counter() - t3
-    timings["total"] = sum(timings.values())
-    reals = np.zeros(run.n)
-    reals[: run.g] = 1.0
+    reals = run.reals.numpy().copy()
+    points, weights = run.points.detach().numpy().copy(), run.weights.detach().numpy().copy()
+    mesh = trimesh.Trimesh(points, last["faces"], process=False)
+    dm = DMesh(points, weights, reals, dtype=torch.float64)
+    info = {"gt_vertices": run.g, "gt_faces": int(len(f)), "points": run.n}
     return MeshToDMeshResult(
-        points=run.points.detach().numpy().copy(), weights=run.weights.detach().numpy().copy(), reals=reals,
-        faces=recovered, re=re, fp=fp, steps=step + 1, best_re=best_re, best_fp=best_fp, best=best,
-        history=history,
-        timings=timings, stopped_early=stopped, config=asdict(cfg))
+        mesh=mesh, dmesh=dm, center=np.zeros(3), scale=1.0, timings=loop.finish(), history=loop.history,
+        info=info, points=points, weights=weights, reals=reals, faces=last["faces"], re=last["re"],
+        fp=last["fp"], steps=loop.history[-1]["step"] + 1, best_re=kept["best_re"], best_fp=kept["best_fp"],
+        best=kept["best"], stopped_early=stopped, config=asdict(cfg))

@@ -45,6 +45,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
 
+The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
+this module supplies each phase's step function (`phase1_step`, `phase2_step` in `reconstruct`).
 A run can be resumed from `state_path` (written atomically every `save_every` steps and at each phase end):
 the same input and config continue identically, except that the phase's candidate set and neighbour cache
 restart empty after a resume.
@@ -54,8 +56,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -65,9 +66,9 @@ from dmesh.extract import mesh_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import ProbabilityConfig, dmin
 from dmesh.recon.init import seeds_and_voronoi
+from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
 from dmesh.recon.optim import BoundedAdam, StepConfig
-from dmesh.recon.pointcloud import (_Clock, _fingerprint, _hard_mask, _load_state, _points_of, _save_state,
-                                    orient_faces)
+from dmesh.recon.pointcloud import orient_faces
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +138,7 @@ class MultiViewConfig:
     depth_tolerance: float | None = None  # keep only faces within this of the captured depth in some view
     orient: bool = True              # orient the output faces consistently per component
     save_every: int = 50             # steps between resumable state saves (with a state path)
+    kernels: str = "native"          # Delta recomputation: "native" (C++) or "reference" (torch, for checks)
     seed: int = 0                    # seed of every random choice
 
     def __post_init__(self):
@@ -186,6 +188,10 @@ class MultiViewConfig:
             raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"MultiViewConfig.threshold must be in [0, 1), got {self.threshold}")
+        from dmesh.recon.pointcloud import KERNELS
+
+        if self.kernels not in KERNELS:
+            raise ValueError(f"MultiViewConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
 
     @property
     def epochs(self) -> int:
@@ -280,7 +286,8 @@ class MultiViewConfig:
 
     def probability_config(self) -> ProbabilityConfig:
         return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
-                                 knn_interval=self.knn_interval, knn_k=self.knn_k, active_band=self.active_band)
+                                 knn_interval=self.knn_interval, knn_k=self.knn_k, active_band=self.active_band,
+                                 impl=self.kernels)
 
     def step_config(self, epoch: int) -> StepConfig:
         if epoch == 0:
@@ -295,25 +302,11 @@ PRESETS = ("paper", "fast", "depth", "tiny")
 
 
 @dataclass
-class MultiViewResult:
-    """Output of `reconstruct`.
-
-    Attributes:
-        mesh: `trimesh.Trimesh` in the input (world) frame (F faces; may be empty).
-        dmesh: the final `DMesh` (in the normalised frame of `center`/`scale`).
-        center: (3,) float64 and scale: float, the normalisation x -> (x - center) * scale.
-        timings: seconds per stage, "total" (wall) and "total_cpu" (process CPU seconds).
-        history: one dict per step (epoch, phase, step, loss, image, faces, drawn, ...).
-        info: counts (views, resolution, points per epoch, final faces, removed interior faces, ...).
-    """
-
-    mesh: object
-    dmesh: object
-    center: np.ndarray
-    scale: float
-    timings: dict = field(default_factory=dict)
-    history: list = field(default_factory=list)
-    info: dict = field(default_factory=dict)
+class MultiViewResult(ReconstructionResult):
+    """Output of `reconstruct` (`dmesh.recon.loop.ReconstructionResult`): mesh in the input (world) frame,
+    dmesh in the normalised frame of center / scale; history: one dict per step (epoch, phase, step, loss,
+    image, faces, drawn, ...); info: counts (views, resolution, points per epoch, final faces, removed
+    interior faces, ...)."""
 
 
 # ------------------------------------------------------------------------------------------------- input
@@ -667,7 +660,7 @@ def _mesh_faces(dm, threshold: float, pd, interior: str, cameras, render: bool =
     `consistent`: None, or a function (points, faces) -> (F,) bool of faces to keep (`depth_consistent_faces`),
     applied before the visibility test."""
     real = dm.reals.detach().numpy() > threshold
-    keep = _hard_mask(dm.reals, pd.faces, threshold)
+    keep = mesh_mask(dm.reals, pd.faces, threshold)
     before = int(keep.sum())
     if interior in ("apex", "both"):
         keep &= ~interior_faces(pd, real)
@@ -740,14 +733,15 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
     if not isinstance(cfg, MultiViewConfig):
         raise TypeError(f"config must be a MultiViewConfig, got {type(cfg).__name__}")
     vw = check_views(views)
-    timings: dict = {}
-    clock = _Clock(timings)
-    t_start, cpu_start = time.perf_counter(), time.process_time()
-    notify = callback or (lambda info: None)
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
+    run_key = fingerprint(np.concatenate([vw.diffuse.ravel(), vw.depth.ravel(),
+                                          vw.world_to_camera.ravel().astype(np.float32)]), cfg)
+    loop = Loop(callback, state_path, run_key, cfg.save_every,
+                extra_state=lambda: {"rng": rng.bit_generator.state, "epochs": info["epochs"], "best": best})
+    clock = loop.clock
 
-    notify({"stage": "init"})
+    loop.stage("init")
     with clock("init"):
         center, scale, w2c, eyes = _normalisation(vw)
         cam_box = float(np.abs(eyes).max(1).min())
@@ -774,13 +768,10 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
             def consistent(pts, faces):
                 return depth_consistent_faces(pts, faces, w2c, vw.fov_y_degrees, depth_n, vw.mask, cfg.depth_tolerance)
-        fingerprint = _fingerprint(np.concatenate([vw.diffuse.ravel(), vw.depth.ravel(),
-                                                   vw.world_to_camera.ravel().astype(np.float32)]), cfg)
     n_views = len(cameras)
     batch = min(cfg.views_per_step, n_views)
     info: dict = {"views": n_views, "capture_resolution": h, "resolution": res, "views_per_step": batch,
-                  "box": box, "fingerprint": fingerprint, "epochs": []}
-    history: list = []
+                  "box": box, "fingerprint": run_key, "epochs": []}
 
     def image_loss(out, ids, targets=exact) -> torch.Tensor:
         target_d, target_z = targets
@@ -792,7 +783,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
     def init_points(epoch: int, mesh) -> DMesh:
         if epoch == 0 and cfg.init == "depth":
-            notify({"stage": "init_depth"})
+            loop.stage("init_depth")
             with clock("init_depth"):
                 return depth_init(vw, center, scale, box, cfg, rng, info)
         if epoch == 0 or mesh is None:
@@ -806,113 +797,89 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
     epoch, phase, start = 0, 1, 0
     best = None  # the epoch whose mesh renders closest to the images ("select_best")
-    resumed = _load_state(state_path, fingerprint)
+    resumed = loop.resume()
     if resumed is None:
         dm = init_points(0, None)
         opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(0))
     else:
         epoch, phase, start = resumed["epoch"], resumed["phase"], resumed["step"]
         dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
-        train = ("points", "weights", "reals") if phase == 1 else ("reals",)
-        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch), train)
+        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch),
+                          TRAIN_ALL if phase == 1 else ("reals",))
         if resumed.get("optimizer") is not None:
             opt.load_state_dict(resumed["optimizer"])
         rng.bit_generator.state = resumed["rng"]
-        history, info["epochs"], best = list(resumed["history"]), list(resumed["epochs"]), resumed["best"]
-        timings.update(resumed["timings"])
+        info["epochs"], best = list(resumed["epochs"]), resumed["best"]
         info["resumed_from"] = {"epoch": epoch, "phase": phase, "step": start}
         log.info("resuming from epoch %d phase %d step %d", epoch, phase, start)
-
-    def save(next_epoch: int, next_phase: int, next_step: int) -> None:
-        if state_path is None:
-            return
-        _save_state(state_path, {
-            "fingerprint": fingerprint, "epoch": next_epoch, "phase": next_phase, "step": next_step,
-            "points": dm.points.detach().clone(), "weights": dm.weights.detach().clone(),
-            "reals": dm.reals.detach().clone(), "optimizer": opt.state_dict() if next_step > 0 else None,
-            "rng": rng.bit_generator.state, "history": history, "epochs": info["epochs"], "best": best,
-            "timings": dict(timings)})
 
     def pick_views() -> np.ndarray:
         return np.sort(rng.choice(n_views, batch, replace=False)) if batch < n_views else np.arange(n_views)
 
     pd, final = None, None
+
+    # ------------------------------------------------------------------- phase 1: soft renderer, all move
+    def phase1_step(step: int):
+        nonlocal pd
+        stage_t: dict = {}
+        fp = dm.face_probabilities(timings=stage_t)
+        clock.add(stage_t, "phase1_")
+        pd = fp.power_diagram
+        ids = pick_views()
+        with clock("phase1_render"):
+            with torch.no_grad():
+                rmax = dm.reals[fp.faces].max(1).values
+                drawn = torch.nonzero(fp.prob_wdt.detach() * rmax > cfg.alpha_thresh).squeeze(1)
+            out = soft_render_views(dm.points, fp.faces[drawn], fp.prob[drawn].float(),
+                                    [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0)
+            loss_img = image_loss(out, torch.from_numpy(ids), soft)
+        with clock("phase1_regularizers"):
+            loss = add_phase1_regularizers(loss_img, dm, fp, pd, cfg, step)
+        return loss, {"image": float(loss_img.detach()), "drawn": int(len(drawn)),
+                      "candidates": int(len(fp.faces)), "points": len(dm)}
+
+    def phase1_after(step: int) -> dict:  # points stay in the box; the mesh after the update
+        with torch.no_grad():
+            dm.points.clamp_(-box, box)
+        return {"faces": int(mesh_mask(dm.reals, pd.faces, cfg.threshold).sum())}
+
+    # ------------------------------------------------------ phase 2: tetrahedral renderer, frozen WDT, reals
+    def phase2_step(step: int):
+        if step in cfg.freeze_phase2:
+            freeze_faces(opt, pd.faces[mesh_mask(dm.reals, pd.faces, cfg.threshold)])
+        ids = pick_views()
+        with clock("phase2_render"):
+            opacity = dmin(dm.reals[faces].double(), cfg.alpha_real).float()
+            out = tet_render_views(verts, pd.tets, pd.faces, pd.face_tets, opacity, [cameras[i] for i in ids])
+            loss_img = image_loss(out, torch.from_numpy(ids))
+        with clock("phase2_regularizers"):
+            loss = loss_img
+            if cfg.lambda_real_end > 0:
+                loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
+        return loss, {"image": float(loss_img.detach()), "drawn": int(len(faces)), "candidates": int(len(faces)),
+                      "points": len(dm)}
+
+    def phase2_after(step: int) -> dict:  # the mesh after the update
+        return {"faces": int(mesh_mask(dm.reals, pd.faces, cfg.threshold).sum())}
+
     while epoch < cfg.epochs:
         tag = f"epoch{epoch}_"
-        # ------------------------------------------------------------------------------------- phase 1
         if phase == 1:
-            notify({"stage": tag + "phase1"})
-            steps = cfg.steps_phase1[epoch]
-            for step in range(start, steps):
-                t0 = time.perf_counter()
-                stage_t: dict = {}
-                fp = dm.face_probabilities(timings=stage_t)
-                clock.add(stage_t, "phase1_")
-                pd = fp.power_diagram
-                ids = pick_views()
-                with clock("phase1_render"):
-                    with torch.no_grad():
-                        rmax = dm.reals[fp.faces].max(1).values
-                        drawn = torch.nonzero(fp.prob_wdt.detach() * rmax > cfg.alpha_thresh).squeeze(1)
-                    out = soft_render_views(dm.points, fp.faces[drawn], fp.prob[drawn].float(),
-                                            [cameras[i] for i in ids], edge_width=cfg.edge_width, min_opacity=0.0)
-                    loss_img = image_loss(out, torch.from_numpy(ids), soft)
-                with clock("phase1_regularizers"):
-                    loss = add_phase1_regularizers(loss_img, dm, fp, pd, cfg, step)
-                with clock("phase1_backward"):
-                    opt.zero_grad()
-                    if loss.requires_grad:
-                        loss.backward()
-                with clock("phase1_step"):
-                    opt.step()
-                    with torch.no_grad():
-                        dm.points.clamp_(-box, box)
-                hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
-                rec = {"epoch": epoch, "phase": 1, "step": step, "steps": steps, "loss": float(loss.detach()),
-                       "image": float(loss_img.detach()), "faces": int(hard.sum()), "drawn": int(len(drawn)),
-                       "candidates": int(len(fp.faces)), "points": len(dm), "seconds": time.perf_counter() - t0}
-                history.append(rec)
-                notify(rec)
-                if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < steps:
-                    save(epoch, 1, step + 1)
+            loop.stage(tag + "phase1")
+            loop.run_phase(phase1_step, opt, cfg.steps_phase1[epoch], start, {"epoch": epoch, "phase": 1},
+                           "phase1_", after_step=phase1_after)
             phase, start = 2, 0
             opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch), train=("reals",))
-            save(epoch, 2, 0)
+            loop.save({"epoch": epoch, "phase": 2, "step": 0}, opt)
 
-        # ------------------------------------------------------------------------------------- phase 2
-        notify({"stage": tag + "phase2"})
-        steps = cfg.steps_phase2[epoch]
+        loop.stage(tag + "phase2")
         with clock("phase2_wdt"):
             pd = dm.power_diagram()
             faces = torch.from_numpy(pd.faces.astype(np.int64))
             ones = torch.ones(len(faces), dtype=torch.float64)
             verts = dm.points.detach()
-        for step in range(start, steps):
-            t0 = time.perf_counter()
-            if step in cfg.freeze_phase2:
-                hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
-                opt.freeze(torch.from_numpy(_points_of(pd.faces[hard], len(dm))))
-            ids = pick_views()
-            with clock("phase2_render"):
-                opacity = dmin(dm.reals[faces].double(), cfg.alpha_real).float()
-                out = tet_render_views(verts, pd.tets, pd.faces, pd.face_tets, opacity, [cameras[i] for i in ids])
-                loss_img = image_loss(out, torch.from_numpy(ids))
-                loss = loss_img
-                if cfg.lambda_real_end > 0:
-                    loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
-            with clock("phase2_backward"):
-                opt.zero_grad()
-                if loss.requires_grad:
-                    loss.backward()
-                opt.step()
-            hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
-            rec = {"epoch": epoch, "phase": 2, "step": step, "steps": steps, "loss": float(loss.detach()),
-                   "image": float(loss_img.detach()), "faces": int(hard.sum()), "drawn": int(len(faces)),
-                   "candidates": int(len(faces)), "points": len(dm), "seconds": time.perf_counter() - t0}
-            history.append(rec)
-            notify(rec)
-            if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < steps:
-                save(epoch, 2, step + 1)
+        loop.run_phase(phase2_step, opt, cfg.steps_phase2[epoch], start, {"epoch": epoch, "phase": 2},
+                       "phase2_", after_step=phase2_after)
 
         # ------------------------------------------------------------------------------ end of the epoch
         with clock("extract"):
@@ -933,8 +900,8 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
                     best = {"epoch": epoch, "eval_loss": record["eval_loss"], "points": dm.points.detach().clone(),
                             "weights": dm.weights.detach().clone(), "reals": dm.reals.detach().clone()}
         info["epochs"].append(record)
-        notify({"stage": tag + "end", **record, "vertices": np.asarray(mesh.vertices) / scale + center,
-                "triangles": np.asarray(mesh.faces)})
+        loop.stage(tag + "end", **record, vertices=np.asarray(mesh.vertices) / scale + center,
+                   triangles=np.asarray(mesh.faces))
         epoch, phase, start = epoch + 1, 1, 0
         if epoch < cfg.epochs:
             with clock("init"):
@@ -944,10 +911,10 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
                 dm = init_points(epoch, mesh if len(mesh.faces) else None)
                 opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(epoch))
                 pd = None
-        save(epoch, 1, 0)
+        loop.save({"epoch": epoch, "phase": 1, "step": 0}, opt)
 
     # ----------------------------------------------------------------------------------------- extraction
-    notify({"stage": "extract"})
+    loop.stage("extract")
     with clock("extract"):
         if best is not None and best["epoch"] != cfg.epochs - 1:
             dm = DMesh(best["points"], best["weights"], best["reals"], cfg.probability_config())
@@ -963,11 +930,9 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         with clock("orient"):
             orient_faces(mesh)
     mesh.vertices = np.asarray(mesh.vertices) / scale + center
-    for key, now in (("total", time.perf_counter() - t_start), ("total_cpu", time.process_time() - cpu_start)):
-        timings[key] = now if resumed is None else timings.get(key, 0.0) + now
     info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)), "points": len(dm),
                  "interior_removed": removed, "hidden_points": int(pd.hidden.sum())})
-    return MultiViewResult(mesh, dm, center, scale, timings, history, info)
+    return MultiViewResult(mesh, dm, center, scale, loop.finish(), loop.history, info)
 
 
 __all__ = ["MultiViewConfig", "MultiViewResult", "PRESETS", "reconstruct", "check_views", "downsample",

@@ -16,20 +16,17 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
 4. The mesh: faces of the final WDT whose three real values exceed `threshold`, oriented consistently per
    connected component, mapped back to the input frame.
 
+The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
+this module supplies each phase's step function (`phase1_step`, `phase2_step` in `reconstruct`).
 A run can be resumed from `state_path` (written atomically every `save_every` steps and at the end of each
 phase): same config and same input give the same continuation, except that the per-phase candidate set and
 neighbour cache restart empty after a resume (they are rebuilt within a few steps).
 """
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import logging
 import os
-import time
-from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -39,6 +36,7 @@ from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import ProbabilityConfig, dmin
 from dmesh.recon.init import carve_far_faces, seeds_and_voronoi
+from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
 from dmesh.recon.optim import BoundedAdam, StepConfig
 
 log = logging.getLogger(__name__)
@@ -90,6 +88,7 @@ class PointCloudConfig:
     orient: bool = True             # orient the output faces consistently per component
     save_every: int = 50            # steps between resumable state saves (with a state path)
     workers: int = 2                # threads of the k-d tree queries
+    kernels: str = "native"         # "native" (C++ expected Chamfer and Delta) or "reference" (torch, for checks)
     seed: int = 0                   # seed of every random choice
 
     def __post_init__(self):
@@ -117,6 +116,8 @@ class PointCloudConfig:
             raise ValueError(f"PointCloudConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"PointCloudConfig.threshold must be in [0, 1), got {self.threshold}")
+        if self.kernels not in KERNELS:
+            raise ValueError(f"PointCloudConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
         object.__setattr__(self, "knn_thresholds", tuple(float(t) for t in self.knn_thresholds))
         object.__setattr__(self, "freeze_phase1", tuple(int(s) for s in self.freeze_phase1))
         object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
@@ -171,7 +172,8 @@ class PointCloudConfig:
     def probability_config(self) -> ProbabilityConfig:
         return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
                                  knn_interval=self.knn_interval, knn_k=self.knn_k,
-                                 knn_thresholds=self.knn_thresholds, active_band=self.active_band)
+                                 knn_thresholds=self.knn_thresholds, active_band=self.active_band,
+                                 impl=self.kernels)
 
     def step_config(self) -> StepConfig:
         return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real,
@@ -179,28 +181,15 @@ class PointCloudConfig:
 
 
 PRESETS = ("paper", "fast", "tiny")
+#: Implementations of the step's kernels (the expected Chamfer and the Delta recomputation).
+KERNELS = ("native", "reference")
 
 
 @dataclass
-class PointCloudResult:
-    """Output of `reconstruct`.
-
-    Attributes:
-        mesh: `trimesh.Trimesh` in the input frame (F faces; may be empty).
-        dmesh: the final `DMesh` (in the unit-radius frame of `center`/`scale`).
-        center: (3,) float64 and scale: float, the normalisation x -> (x - center) * scale.
-        timings: seconds per stage and "total".
-        history: one dict per step (phase, step, loss, cd_gt, cd_ours, k, faces).
-        info: counts (points, real seeds, final faces, ...).
-    """
-
-    mesh: object
-    dmesh: object
-    center: np.ndarray
-    scale: float
-    timings: dict = field(default_factory=dict)
-    history: list = field(default_factory=list)
-    info: dict = field(default_factory=dict)
+class PointCloudResult(ReconstructionResult):
+    """Output of `reconstruct` (`dmesh.recon.loop.ReconstructionResult`): mesh in the input frame, dmesh in the
+    unit-radius frame of center / scale; history: one dict per step (phase, step, loss, cd_gt, cd_ours, k,
+    faces, ...); info: counts (points, real seeds, final faces, ...)."""
 
 
 def check_points(points, normals=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -230,38 +219,9 @@ def check_points(points, normals=None) -> tuple[np.ndarray, np.ndarray | None]:
     return pts, nrm
 
 
-class _Clock:
-    """Accumulates seconds per stage."""
-
-    def __init__(self, timings: dict):
-        self.timings = timings
-
-    @contextmanager
-    def __call__(self, name: str):
-        t0 = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
-
-    def add(self, other: dict, prefix: str = "") -> None:
-        for k, v in other.items():
-            self.timings[prefix + k] = self.timings.get(prefix + k, 0.0) + v
-
-
-def _fingerprint(points: np.ndarray, cfg: PointCloudConfig) -> str:
-    h = hashlib.sha256(np.ascontiguousarray(points).tobytes())
-    h.update(repr(sorted(dataclasses.asdict(cfg).items())).encode())
-    return h.hexdigest()[:16]
-
-
-def _hard_mask(reals: torch.Tensor, faces: np.ndarray, threshold: float) -> np.ndarray:
-    return (reals.detach().numpy()[faces] > threshold).all(1)
-
-
 def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
                 callback: Callable[[dict], None] | None = None,
-                state_path: str | os.PathLike | None = None) -> PointCloudResult:
+                state_path: str | os.PathLike | None = None, probe=None) -> PointCloudResult:
     """Reconstructs a mesh from a point cloud with DMesh.
 
     Args:
@@ -269,9 +229,12 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
             `config.lambda_normal` > 0).
         config: `PointCloudConfig` (None: the paper preset).
         callback: called after every step with {"phase", "step", "steps", "loss", "cd_gt", "cd_ours", "k",
-            "faces" (current mesh faces), "candidates" (scored faces), "samples", "seconds"}; also with {"stage": name} when a stage starts ("init", "phase1", "phase2",
-            "extract").
+            "faces" (current mesh faces), "candidates" (scored faces), "samples", "seconds"}; also with
+            {"stage": name} when a stage starts ("init", "phase1", "phase2", "extract").
         state_path: file for the resumable state; an existing state of the same input and config is resumed.
+        probe: optional (every, fn): fn(params, record) after every `every`-th step of each phase and after
+            its last (`Loop`); params holds the current "points", "weights", "reals" tensors. For curves of
+            figures that need the whole state (e.g. the extracted mesh's Chamfer distance).
     Returns:
         `PointCloudResult`.
     Raises:
@@ -283,16 +246,14 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         raise ValueError("lambda_normal > 0 needs normals")
     from dmesh.representation import DMesh
 
-    timings: dict = {}
-    clock = _Clock(timings)
-    t_start = time.perf_counter()
-    cpu_start = time.process_time()
-    notify = callback or (lambda info: None)
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
-    fingerprint = _fingerprint(pts_in, cfg)
+    chamfer = None
+    loop = Loop(callback, state_path, fingerprint(pts_in, cfg), cfg.save_every,
+                extra_state=lambda: {"k": chamfer.k, "rng": rng.bit_generator.state}, probe=probe)
+    clock = loop.clock
 
-    notify({"stage": "init"})
+    loop.stage("init")
     with clock("init"):
         center = pts_in.mean(0)
         radius = float(np.linalg.norm(pts_in - center, axis=1).max())
@@ -309,130 +270,93 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
                                                        workers=cfg.workers)
         dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
         chamfer = ExpectedChamfer(target, target_n if cfg.lambda_normal > 0 else None, k_max=cfg.k_max,
-                                  mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal, workers=cfg.workers)
+                                  mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal, workers=cfg.workers,
+                                  impl=cfg.kernels)
     info = {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
-            "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": fingerprint}
-    history: list = []
+            "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": loop.fingerprint}
     phase, start = 1, 0
     opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config())
-    resumed = _load_state(state_path, fingerprint)
+    resumed = loop.resume()
     if resumed is not None:
         phase, start = resumed["phase"], resumed["step"]
+        if phase == 3:  # finished: straight to extraction
+            phase, start = 2, cfg.steps_phase2
         with torch.no_grad():
             dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
-        train = ("points", "weights", "reals") if phase == 1 else ("reals",)
-        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), train)
+        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), TRAIN_ALL if phase == 1 else ("reals",))
         if resumed.get("optimizer") is not None:
             opt.load_state_dict(resumed["optimizer"])
         chamfer.k = int(resumed["k"])
         rng.bit_generator.state = resumed["rng"]
-        history = list(resumed["history"])
-        timings.update(resumed["timings"])
         info["resumed_from"] = {"phase": phase, "step": start}
         log.info("resuming from phase %d step %d", phase, start)
-
-    def save(next_phase: int, next_step: int) -> None:
-        if state_path is None:
-            return
-        _save_state(state_path, {
-            "fingerprint": fingerprint, "phase": next_phase, "step": next_step,
-            "points": dm.points.detach().clone(), "weights": dm.weights.detach().clone(),
-            "reals": dm.reals.detach().clone(),
-            "optimizer": opt.state_dict() if next_step > 0 else None, "k": chamfer.k,
-            "rng": rng.bit_generator.state, "history": history, "timings": dict(timings)})
+    with_normals = cfg.lambda_normal > 0
 
     # ----------------------------------------------------------------------------------------- phase 1
+    def phase1_step(step: int):
+        stage_t: dict = {}
+        fp = dm.face_probabilities(timings=stage_t)
+        clock.add(stage_t, "phase1_")
+        pd = fp.power_diagram
+        hard = mesh_mask(dm.reals, pd.faces, cfg.threshold)
+        if step in cfg.freeze_phase1:
+            freeze_faces(opt, pd.faces[hard])
+        with clock("phase1_sampling"):
+            samples = sample_faces(dm.points, fp.faces, fp.prob_wdt, dm.reals, fp.prob, cfg.num_samples, rng,
+                                   cfg.prob_threshold, with_normals=with_normals)
+        with clock("phase1_chamfer"):
+            loss, fig = chamfer(samples)
+        with clock("phase1_regularizers"):
+            loss = add_phase1_regularizers(loss, dm, fp, pd, cfg, step)
+        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
+                      "candidates": int(len(fp.faces)), "samples": len(samples)}
+
     if phase == 1:
-        notify({"stage": "phase1"})
-        for step in range(start, cfg.steps_phase1):
-            t0 = time.perf_counter()
-            stage_t: dict = {}
-            fp = dm.face_probabilities(timings=stage_t)
-            clock.add(stage_t, "phase1_")
-            pd = fp.power_diagram
-            hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
-            if step in cfg.freeze_phase1:
-                opt.freeze(torch.from_numpy(_points_of(pd.faces[hard], len(dm))))
-            with clock("phase1_sampling"):
-                samples = sample_faces(dm.points, fp.faces, fp.prob_wdt, dm.reals, fp.prob, cfg.num_samples,
-                                       rng, cfg.prob_threshold, with_normals=cfg.lambda_normal > 0)
-            with clock("phase1_chamfer"):
-                loss_rec, fig = chamfer(samples)
-            with clock("phase1_regularizers"):
-                loss = add_phase1_regularizers(loss_rec, dm, fp, pd, cfg, step)
-            with clock("phase1_backward"):
-                opt.zero_grad()
-                if loss.requires_grad:
-                    loss.backward()
-            with clock("phase1_step"):
-                opt.step()
-            rec = {"phase": 1, "step": step, "steps": cfg.steps_phase1, "loss": float(loss.detach()),
-                   "cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
-                   "candidates": int(len(fp.faces)), "samples": len(samples),
-                   "seconds": time.perf_counter() - t0}
-            history.append(rec)
-            notify(rec)
-            if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < cfg.steps_phase1:
-                save(1, step + 1)
+        loop.stage("phase1")
+        loop.run_phase(phase1_step, opt, cfg.steps_phase1, start, {"phase": 1}, "phase1_")
         phase, start = 2, 0
         opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), train=("reals",))
-        save(2, 0)
+        loop.save({"phase": 2, "step": 0}, opt)
 
     # ----------------------------------------------------------------------------------------- phase 2
-    notify({"stage": "phase2"})
+    loop.stage("phase2")
     with clock("phase2_wdt"):
         pd = dm.power_diagram()
         faces = torch.from_numpy(pd.faces.astype(np.int64))
         ones = torch.ones(len(faces), dtype=dm.points.dtype)
-    for step in range(start, cfg.steps_phase2):
-        t0 = time.perf_counter()
+
+    def phase2_step(step: int):
         if step in cfg.freeze_phase2:
-            hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
-            opt.freeze(torch.from_numpy(_points_of(pd.faces[hard], len(dm))))
+            freeze_faces(opt, pd.faces[mesh_mask(dm.reals, pd.faces, cfg.threshold)])
         with clock("phase2_sampling"):
             prob = dmin(dm.reals[faces].double(), cfg.alpha_real)
             samples = sample_faces(dm.points, faces, ones, dm.reals, prob, cfg.num_samples, rng,
-                                   cfg.prob_threshold, with_normals=cfg.lambda_normal > 0)
+                                   cfg.prob_threshold, with_normals=with_normals)
         with clock("phase2_chamfer"):
-            loss_rec, fig = chamfer(samples)
-            loss = loss_rec
+            loss, fig = chamfer(samples)
+        with clock("phase2_regularizers"):
             if cfg.lambda_real_end > 0:
                 loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
-        with clock("phase2_backward"):
-            opt.zero_grad()
-            if loss.requires_grad:
-                loss.backward()
-            opt.step()
-        hard = _hard_mask(dm.reals, pd.faces, cfg.threshold)
-        rec = {"phase": 2, "step": step, "steps": cfg.steps_phase2, "loss": float(loss.detach()), "cd_gt": fig["cd_gt"],
-               "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()), "candidates": int(len(faces)),
-               "samples": len(samples), "seconds": time.perf_counter() - t0}
-        history.append(rec)
-        notify(rec)
-        if cfg.save_every and (step + 1) % cfg.save_every == 0 and step + 1 < cfg.steps_phase2:
-            save(2, step + 1)
-    save(3, 0)
+        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"],
+                      "candidates": int(len(faces)), "samples": len(samples)}
+
+    def phase2_faces(step: int) -> dict:  # the mesh after the update
+        return {"faces": int(mesh_mask(dm.reals, pd.faces, cfg.threshold).sum())}
+
+    loop.run_phase(phase2_step, opt, cfg.steps_phase2, start, {"phase": 2}, "phase2_", after_step=phase2_faces)
+    loop.save({"phase": 3, "step": 0}, opt)
 
     # ------------------------------------------------------------------------------------- extraction
-    notify({"stage": "extract"})
+    loop.stage("extract")
     with clock("extract"):
         mesh = extract(dm, cfg.threshold, pd, cfg.extraction)
     if cfg.orient:
         with clock("orient"):
             orient_faces(mesh)
     mesh.vertices = np.asarray(mesh.vertices) / scale + center
-    # "total_cpu": process CPU seconds (all threads), a machine-load-independent companion of "total".
-    for key, now in (("total", time.perf_counter() - t_start), ("total_cpu", time.process_time() - cpu_start)):
-        timings[key] = now if resumed is None else timings.get(key, 0.0) + now
     info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
                  "hidden_points": int(pd.hidden.sum()), "final_k": int(chamfer.k)})
-    return PointCloudResult(mesh, dm, center, scale, timings, history, info)
-
-
-def _points_of(faces: np.ndarray, n: int) -> np.ndarray:
-    mask = np.zeros(n, bool)
-    mask[np.asarray(faces, dtype=np.int64).reshape(-1)] = True
-    return mask
+    return PointCloudResult(mesh, dm, center, scale, loop.finish(), loop.history, info)
 
 
 def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all"):
@@ -505,30 +429,6 @@ def orient_faces(mesh) -> None:
     neg = comp_vol[comp] < 0
     faces[neg] = faces[neg][:, ::-1]
     mesh.faces = faces
-
-
-def _save_state(path, state: dict) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
-
-
-def _load_state(path, fingerprint: str) -> dict | None:
-    if path is None or not Path(path).exists():
-        return None
-    try:
-        state = torch.load(path, weights_only=False)
-    except Exception as exc:  # an unreadable state is ignored, not fatal: the run starts over
-        log.warning("ignoring unreadable state %s: %s", path, exc)
-        return None
-    if state.get("fingerprint") != fingerprint:
-        log.info("state %s is for another input or config; starting over", path)
-        return None
-    if state["phase"] == 3:
-        state["phase"], state["step"] = 2, 10**9  # finished: skip straight to extraction
-    return state
 
 
 __all__ = ["PointCloudConfig", "PointCloudResult", "PRESETS", "reconstruct", "check_points", "extract",

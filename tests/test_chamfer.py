@@ -1,0 +1,215 @@
+"""Native expected Chamfer (native/src/expected_chamfer.h) against the torch reference (dmesh.reference.chamfer),
+finite differences, SciPy's cKDTree and itself on other thread counts. Letters: G target points, S samples,
+K candidates per target row.
+"""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from dmesh import native
+from dmesh.losses.chamfer import ExpectedChamfer, SurfaceSamples, expected_distance
+from dmesh.reference.chamfer import target_term
+from helpers import assert_close
+
+
+def _sphere(rng, n: int) -> np.ndarray:
+    x = rng.standard_normal((n, 3))
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def _problem(rng, G: int, S: int, K: int, faces: int, p_range=(0.01, 0.99)):
+    """Target and samples on the unit sphere, random face ids in [0, faces), knn rows from cKDTree."""
+    target = _sphere(rng, G)
+    pts = torch.tensor(_sphere(rng, S), requires_grad=True)
+    prob = torch.tensor(rng.uniform(*p_range, S), requires_grad=True)
+    face = torch.from_numpy(rng.integers(0, faces, S))
+    _, knn = cKDTree(pts.detach().numpy()).query(target, K)
+    return target, pts, prob, face, torch.from_numpy(np.asarray(knn, np.int64).reshape(G, K))
+
+
+def _grads(expected, pts, prob, w):
+    pts.grad = prob.grad = None
+    (expected * w).sum().backward()
+    return pts.grad.clone(), prob.grad.clone()
+
+
+# ------------------------------------------------------------------------------- kernel vs reference
+
+@pytest.mark.parametrize("case", ["plain", "repeated_faces", "p_near_0_and_1", "k_above_distinct_faces"])
+def test_gradcheck_native(case):
+    rng = np.random.default_rng(7)
+    G, S, K = 5, 9, 6
+    faces = {"plain": 1000, "repeated_faces": 4, "p_near_0_and_1": 1000, "k_above_distinct_faces": 2}[case]
+    target, pts, prob, face, knn = _problem(rng, G, S, K, faces)
+    if case == "p_near_0_and_1":
+        prob = torch.tensor(rng.choice([1e-7, 1.0 - 1e-7, 0.5], S), requires_grad=True)
+    if case == "repeated_faces":
+        face[knn[0, :3]] = 3  # three candidates of row 0 on one face: the last two are masked
+    t = torch.from_numpy(target)
+    # gradcheck's float64 central differences (eps 1e-6) against the analytic backward; the loss is smooth
+    # in the positions (no candidate at distance 0) and polynomial in the probabilities.
+    assert torch.autograd.gradcheck(lambda x, p: expected_distance(t, x, p, face, knn)[0], (pts, prob))
+
+
+def test_by_hand():
+    pts = torch.tensor([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]], dtype=torch.float64, requires_grad=True)
+    prob = torch.tensor([0.5, 0.5, 1.0], dtype=torch.float64, requires_grad=True)
+    e, r = expected_distance(np.zeros((1, 3)), pts, prob, [7, 7, 2], [[0, 1, 2]])
+    assert e.item() == pytest.approx(0.5 * 1 + 0.5 * 3)  # the second sample repeats face 7: masked
+    assert r.item() == 0.0 and not r.requires_grad
+    e.sum().backward()
+    # dE/dp = B_i (d_i - T_{i+1}): p_0: 1 * (1 - 3) = -2, p_1 masked: 0, p_2: 0.5 * 3.
+    assert prob.grad.tolist() == pytest.approx([-2.0, 0.0, 1.5])
+    assert pts.grad[:, 0].tolist() == pytest.approx([0.5, 0.0, 0.5])
+
+
+def test_matches_reference_large():
+    rng = np.random.default_rng(11)
+    G = S = 20_000
+    target, pts, prob, face, knn = _problem(rng, G, S, 60, faces=2 * S)
+    face[rng.integers(0, S, S // 10)] = 17  # a face with many samples: masks in many rows
+    w = torch.from_numpy(rng.standard_normal(G))
+    e_ref, r_ref = target_term(torch.from_numpy(target), pts, prob, face, knn)
+    g_ref = _grads(e_ref, pts, prob, w)
+    e, r = expected_distance(target, pts, prob, face, knn, num_threads=2)
+    g = _grads(e, pts, prob, w)
+    # Both are float64 with the same operations up to summation order: measured max diffs ~1e-16 relative to
+    # the largest value; 1e-6 leaves room for other compilers and BLAS-free torch reductions.
+    assert_close(e, e_ref, 1e-6, what="expected")
+    assert_close(r, r_ref, 1e-6, what="residual")
+    assert_close(g[0], g_ref[0], 1e-6, what="grad points")
+    assert_close(g[1], g_ref[1], 1e-6, what="grad prob")
+
+
+def test_float32_within_tolerance():
+    rng = np.random.default_rng(3)
+    target, pts, prob, face, knn = _problem(rng, 5000, 5000, 40, faces=10_000)
+    w = torch.ones(5000, dtype=torch.float64)
+    e64, _ = expected_distance(target, pts, prob, face, knn)
+    g64 = _grads(e64, pts, prob, w)
+    e32, _ = expected_distance(target, pts, prob, face, knn, dtype=torch.float32)
+    g32 = _grads(e32, pts, prob, w)
+    # float32 coordinates round x - t to ~1e-7 absolute, so the directions (x - t) / d of candidates ~1e-2
+    # apart carry ~1e-5 relative error. Measured at this size, relative to the largest value: loss 1.4e-9,
+    # position gradients 8.6e-6, probability gradients 6.4e-7 (paper size: about 4e-4 for positions).
+    assert abs(e32.mean().item() / e64.mean().item() - 1) < 1e-5
+    assert_close(g32[0], g64[0], 1e-3, what="grad points float32")
+    assert_close(g32[1], g64[1], 1e-4, what="grad prob float32")
+
+
+def test_sparse_face_ids_and_edge_sizes(rng):
+    target, pts, prob, face, knn = _problem(rng, 50, 40, 10, faces=8)
+    e, r = expected_distance(target, pts, prob, face, knn)
+    e_big, r_big = expected_distance(target, pts, prob, face * 200_000_000 + 5, knn)  # ranked, not indexed
+    assert torch.equal(e, e_big) and torch.equal(r, r_big)
+    e0, r0 = expected_distance(target, pts, prob, face, knn[:, :0])  # K = 0: nothing exists
+    assert (e0 == 0).all() and (r0 == 1).all()
+    e1, _ = expected_distance(target[:0], pts, prob, face, knn[:0])
+    assert e1.shape == (0,)
+
+
+def test_bad_input_names_the_argument(rng):
+    target, pts, prob, face, knn = _problem(rng, 10, 12, 4, faces=20)
+    with pytest.raises(ValueError, match="knn holds a sample id outside"):
+        expected_distance(target, pts, prob, face, knn + 12)
+    with pytest.raises(ValueError, match="prob must have shape"):
+        expected_distance(target, pts, prob[:5], face, knn)
+    with pytest.raises(ValueError, match="face ids must"):
+        expected_distance(target, pts, prob, face - 100, knn)
+    with pytest.raises(ValueError, match="knn must have shape"):
+        expected_distance(target, pts, prob, face, knn[:3])
+    with pytest.raises(ValueError, match="k must be in"):
+        native.knn_search(pts, target, 13)
+
+
+# ------------------------------------------------------------------------------------- determinism
+
+def test_byte_identical_on_any_thread_count():
+    rng = np.random.default_rng(5)
+    target, pts, prob, face, knn = _problem(rng, 4000, 3000, 30, faces=3000)  # 120K candidates: threaded
+    tn, pn, qn = target, pts.detach().numpy(), prob.detach().numpy()
+    w = rng.standard_normal(4000)
+    out = []
+    for threads in (1, 2, 3):
+        fwd = native.expected_chamfer_forward(tn, pn, qn, face, knn, threads)
+        bwd = native.expected_chamfer_backward(tn, pn, qn, face, knn, w, threads)
+        ids = native.knn_search(pn, tn, 30, threads)
+        out.append(b"".join(a.tobytes() for a in (*fwd, *bwd, ids)))
+    assert out[0] == out[1] == out[2]
+    grads = []
+    for threads in (1, 2):
+        torch.set_num_threads(threads)
+        try:
+            grads.append(_grads(expected_distance(target, pts, prob, face, knn)[0], pts, prob, torch.from_numpy(w)))
+        finally:
+            torch.set_num_threads(2)
+    assert all(torch.equal(a, b) for a, b in zip(*grads))
+
+
+# --------------------------------------------------------------------------------------------- kNN
+
+@pytest.mark.parametrize("kind,k", list(itertools.product(["surface", "cluster_far", "grid_ties"], [1, 7, 50])))
+def test_knn_matches_cKDTree(kind, k):
+    rng = np.random.default_rng(2)
+    if kind == "surface":
+        data, queries = _sphere(rng, 3000), _sphere(rng, 2000)
+    elif kind == "cluster_far":  # data in a small blob, queries far away and spread out
+        data, queries = 0.01 * rng.standard_normal((500, 3)), 5 * rng.standard_normal((300, 3))
+    else:  # a coarse grid with duplicates: many equal distances, broken by the smaller id
+        g = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        data, queries = np.concatenate([g, g[:40]]), rng.integers(0, 5, (200, 3)) + 0.5 * rng.random((200, 3))
+    ids = native.knn_search(data, queries, k)
+    assert ids.dtype == np.int32 and ids.shape == (len(queries), k)
+    d = np.linalg.norm(queries[:, None, :] - data[ids], axis=-1)
+    dist, ref = cKDTree(data).query(queries, k)
+    dist = dist.reshape(len(queries), k)
+    assert_close(d, dist, 1e-12, what="knn distances")
+    # Exact ranking by (distance, id): nearest first, ties to the smaller id.
+    d2 = ((queries[:, None, :] - data[ids]) ** 2).sum(-1)
+    assert ((d2[:, 1:] > d2[:, :-1]) | ((d2[:, 1:] == d2[:, :-1]) & (ids[:, 1:] > ids[:, :-1]))).all()
+    if kind != "grid_ties":
+        assert np.array_equal(ids, np.asarray(ref).reshape(len(queries), k))
+
+
+# ----------------------------------------------------------------------------------- ExpectedChamfer
+
+@pytest.mark.parametrize("k_max,n_samples", [(8, 300), (50, 20), (4, 1)])
+def test_impls_agree(rng, k_max, n_samples):
+    """native and reference ExpectedChamfer give the same loss, gradients and K (K > S included)."""
+    target = _sphere(rng, 400)
+    pts = torch.tensor(_sphere(rng, n_samples), requires_grad=True)
+    prob = torch.tensor(rng.uniform(0.05, 0.95, n_samples), requires_grad=True)
+    s = SurfaceSamples(pts, torch.from_numpy(rng.integers(0, n_samples // 2 + 1, n_samples)), prob)
+    res = {}
+    for impl in ("reference", "native"):
+        ec = ExpectedChamfer(target, k_max=k_max, impl=impl, workers=2)
+        loss, fig = ec(s)
+        res[impl] = (loss.detach(), *_grads(loss, pts, prob, 1.0), fig["k"], ec.k, fig["residual"])
+    ref, nat = res["reference"], res["native"]
+    for a, b, what in zip(nat[:3], ref[:3], ("loss", "grad points", "grad prob")):
+        assert_close(a, b, 1e-9, what=what)
+    assert nat[3:5] == ref[3:5] and nat[5] == pytest.approx(ref[5], rel=1e-9, abs=1e-15)
+
+
+def test_normal_term_same_in_both_impls(rng):
+    target = _sphere(rng, 200)
+    pts = torch.tensor(_sphere(rng, 150), requires_grad=True)
+    s = SurfaceSamples(pts, torch.arange(150), torch.full((150,), 0.7, dtype=torch.float64),
+                       torch.from_numpy(_sphere(rng, 150)))
+    losses = [ExpectedChamfer(target, target, k_max=10, lambda_normal=0.3, impl=impl)(s)[0].item()
+              for impl in ("reference", "native")]
+    assert losses[0] == pytest.approx(losses[1], rel=1e-12)
+
+
+def test_empty_samples_and_bad_impl():
+    z = torch.zeros((0, 3), dtype=torch.float64)
+    loss, fig = ExpectedChamfer(np.zeros((3, 3)))(SurfaceSamples(z, torch.zeros(0, dtype=torch.long),
+                                                                 torch.zeros(0, dtype=torch.float64)))
+    assert fig["empty"] and loss.item() == 0.0
+    with pytest.raises(ValueError, match="impl must be one of"):
+        ExpectedChamfer(np.zeros((3, 3)), impl="cuda")
