@@ -372,13 +372,15 @@ class _Coherence:
 
 @contextmanager
 def _stage(timings: dict | None, name: str):
-    """Adds the wall time of the block to timings[name] (seconds) when timings is a dict."""
-    t0 = time.perf_counter()
+    """Adds the wall time of the block to timings[name] and the process CPU time (all threads) to
+    timings[name + "_cpu"] (seconds) when timings is a dict."""
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         yield
     finally:
         if timings is not None:
             timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+            timings[name + "_cpu"] = timings.get(name + "_cpu", 0.0) + time.process_time() - c0
 
 
 def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch.Tensor | None,

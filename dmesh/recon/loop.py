@@ -49,18 +49,20 @@ TRAIN_ALL = ("points", "weights", "reals")
 
 
 class Clock:
-    """Seconds per named stage, accumulated into `timings` (a dict shared with the caller)."""
+    """Seconds per named stage, accumulated into `timings` (a dict shared with the caller): wall time under
+    the stage's name, process CPU time (all threads) under name + "_cpu"."""
 
     def __init__(self, timings: dict):
         self.timings = timings
 
     @contextmanager
     def __call__(self, name: str):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             yield
         finally:
             self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
+            self.timings[name + "_cpu"] = self.timings.get(name + "_cpu", 0.0) + time.process_time() - c0
 
     def add(self, other: dict, prefix: str = "") -> None:
         """Adds seconds per stage measured elsewhere (e.g. `DMesh.face_probabilities(timings=...)`)."""
@@ -76,7 +78,8 @@ class ReconstructionResult:
         mesh: `trimesh.Trimesh` in the input frame (may be empty).
         dmesh: the final `DMesh` (in the frame of `center`/`scale`).
         center: (3,) float64 and scale: float, the normalisation x -> (x - center) * scale.
-        timings: seconds per stage, "total" (wall) and "total_cpu" (process CPU seconds, all threads).
+        timings: wall seconds per stage, and beside each its process CPU seconds (all threads) under the
+            stage's name + "_cpu"; "total" and "total_cpu" for the whole run.
         history: one dict per step (the records of `Loop.run_phase`).
         info: counts and figures of the run.
     """
