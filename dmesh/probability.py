@@ -448,7 +448,7 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
         state.coherence.record(hint_wdt is None, pd, cache, keys, order, found["neighbour"], cand_keys,
                                found.get("edge", np.zeros((0, 3), np.int32)))
 
-    t_prob = time.perf_counter()
+    t_prob, c_prob = time.perf_counter(), time.process_time()
     faces_np = np.concatenate([pd.faces.astype(np.int64), cand])
     faces = torch.from_numpy(faces_np)
     in_wdt = torch.zeros(len(faces), dtype=torch.bool)
@@ -471,6 +471,7 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
                                 (p_wdt * p_real).to(dtype), pd)
     if timings is not None:
         timings["probabilities"] = timings.get("probabilities", 0.0) + time.perf_counter() - t_prob
+        timings["probabilities_cpu"] = timings.get("probabilities_cpu", 0.0) + time.process_time() - c_prob
     return out
 
 

@@ -254,6 +254,36 @@ def test_native_and_reference_kernels_take_the_same_steps():
         PointCloudConfig(kernels="cuda")
 
 
+_DETERMINISM_RUN = """
+import hashlib, numpy as np
+from datasets import normalize, sampling, synthetic
+from dmesh.recon.pointcloud import PointCloudConfig, reconstruct
+gt, _ = normalize.normalize(synthetic.generate("torus", seed=0))
+pts, nrm = sampling.sample_points(gt, 30000, seed=0)
+res = reconstruct(pts, nrm, PointCloudConfig.tiny(num_init=9000, steps_phase1=3, steps_phase2=3))
+print(len(res.dmesh), hashlib.sha256(np.asarray(res.mesh.vertices).tobytes()
+                                     + np.asarray(res.mesh.faces).tobytes()).hexdigest())
+"""
+
+
+def test_same_seed_same_mesh_on_any_thread_count():
+    """Byte-identical meshes on 1 and 2 threads, with phase-1 steps and above the WDT's TBB threshold (the
+    triangulation's order is canonical; the native kernels reduce in a fixed order)."""
+    import os
+
+    from dmesh.native import PARALLEL_THRESHOLD
+
+    out = []
+    for threads in ("1", "2", "2"):
+        env = {**os.environ, "OMP_NUM_THREADS": threads}
+        run = subprocess.run([sys.executable, "-c", _DETERMINISM_RUN], env=env, capture_output=True, text=True,
+                             timeout=600)
+        assert run.returncode == 0, run.stderr[-2000:]
+        out.append(run.stdout.split())
+    assert int(out[0][0]) > PARALLEL_THRESHOLD
+    assert out[0] == out[1] == out[2]
+
+
 def test_harness_method():
     from baselines.base import Inputs
     from baselines.registry import get_method

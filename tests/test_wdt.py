@@ -70,6 +70,27 @@ def test_hull_volume_is_covered(rng):
     assert vol.sum() == pytest.approx(ConvexHull(p).volume, rel=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["random", "grid"])
+def test_output_order_does_not_depend_on_the_insertion(rng, kind):
+    """Byte-identical tets and neighbours from sequential and TBB insertion, run after run (the order is
+    canonical), also on a grid, whose cospherical points the symbolic perturbation decides."""
+    if kind == "random":
+        p = rng.random((30000, 3))
+        w = spacing_weights(rng, len(p))
+    else:
+        g = np.linspace(0.0, 1.0, 32)
+        p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+        w = np.zeros(len(p))
+    seq = wdt.triangulate(p, w, parallel=False)
+    np.testing.assert_array_equal(seq.tets[:, 0], seq.tets.min(1))  # smallest id first
+    key = seq.tets.astype(np.int64) @ (len(p) ** np.arange(3, -1, -1, dtype=np.int64))
+    assert (np.diff(key) > 0).all()                                    # rows ascending
+    for _ in range(3):
+        par = wdt.triangulate(p, w, parallel=True)
+        np.testing.assert_array_equal(par.tets, seq.tets)
+        np.testing.assert_array_equal(par.neighbors, seq.neighbors)
+
+
 def test_grid_gives_six_tets_per_cube_and_no_flat_ones():
     g = np.linspace(0.0, 1.0, 20)
     p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)

@@ -76,6 +76,67 @@ void extract(Rt& rt, RegularTriangulationResult& out) {
   out.num_vertices = static_cast<index_t>(rt.number_of_vertices());
 }
 
+// Puts the tets in a canonical order, so the output depends only on the triangulation and not on how it
+// was built: TBB's parallel insertion hands out cells (and each cell's vertex order) in an order that
+// depends on the thread schedule, and everything downstream (faces, candidates, sampling) inherits it.
+// Within a tet: the even permutation (orientation kept) that puts the smallest id first and the smallest
+// of the other three second. Across tets: ascending (v0, v1, v2, v3). Neighbours follow their vertices.
+void canonicalise(RegularTriangulationResult& out) {
+  const std::size_t T = out.tets.size() / 4;
+  // Even permutations taking position m to the front: identity or a double transposition.
+  static const int kFront[4][4] = {{0, 1, 2, 3}, {1, 0, 3, 2}, {2, 3, 0, 1}, {3, 2, 1, 0}};
+  std::vector<index_t> tets(4 * T), nbrs(4 * T);
+  for (std::size_t t = 0; t < T; ++t) {
+    const index_t* v = &out.tets[4 * t];
+    const index_t* nb = &out.neighbors[4 * t];
+    const int m = static_cast<int>(std::min_element(v, v + 4) - v);
+    int p[4] = {kFront[m][0], kFront[m][1], kFront[m][2], kFront[m][3]};
+    // A cyclic rotation of the last three (even) puts their smallest id second.
+    int r = 1;
+    if (v[p[2]] < v[p[r]]) r = 2;
+    if (v[p[3]] < v[p[r]]) r = 3;
+    const int q[4] = {p[0], p[1 + (r - 1) % 3], p[1 + r % 3], p[1 + (r + 1) % 3]};
+    for (int k = 0; k < 4; ++k) {
+      tets[4 * t + k] = v[q[k]];
+      nbrs[4 * t + k] = nb[q[k]];
+    }
+  }
+  // Rows ascending: a counting sort on v0 (the smallest id: few tets share one), then a small sort of each
+  // bucket on (v1, v2, v3); about 3x faster than one comparison sort of all rows.
+  struct Row {
+    index_t v[4];
+    index_t old;
+  };
+  index_t n = 0;
+  for (std::size_t t = 0; t < T; ++t) n = std::max(n, tets[4 * t] + 1);
+  std::vector<index_t> start(static_cast<std::size_t>(n) + 1, 0);
+  for (std::size_t t = 0; t < T; ++t) ++start[tets[4 * t] + 1];
+  for (index_t i = 0; i < n; ++i) start[i + 1] += start[i];
+  std::vector<Row> rows(T);
+  {
+    std::vector<index_t> fill(start.begin(), start.end() - 1);
+    for (std::size_t t = 0; t < T; ++t) {
+      const index_t* v = &tets[4 * t];
+      rows[fill[v[0]]++] = {{v[0], v[1], v[2], v[3]}, static_cast<index_t>(t)};
+    }
+  }
+  for (index_t i = 0; i < n; ++i) {
+    std::sort(rows.begin() + start[i], rows.begin() + start[i + 1], [](const Row& a, const Row& b) {
+      return std::lexicographical_compare(a.v + 1, a.v + 4, b.v + 1, b.v + 4);
+    });
+  }
+  std::vector<index_t> new_id(T);
+  for (std::size_t i = 0; i < T; ++i) new_id[rows[i].old] = static_cast<index_t>(i);
+  for (std::size_t i = 0; i < T; ++i) {
+    const index_t t = rows[i].old;
+    for (int k = 0; k < 4; ++k) {
+      out.tets[4 * i + k] = rows[i].v[k];
+      const index_t n = nbrs[4 * t + k];
+      out.neighbors[4 * i + k] = n == kNone ? kNone : new_id[n];
+    }
+  }
+}
+
 }  // namespace
 
 bool have_tbb() {
@@ -135,6 +196,7 @@ RegularTriangulationResult regular_triangulation(const real_t* points, const rea
     extract(rt, out);
   }
   out.parallel = use_parallel;
+  if (out.dimension == 3) canonicalise(out);
   if (out.dimension < 3) {
     throw std::invalid_argument(
         "regular_triangulation: the points are not affinely independent in 3D (the triangulation has "

@@ -8,7 +8,9 @@
 namespace dmesh {
 
 struct RegularTriangulationResult {
-  std::vector<index_t> tets;       // (T, 4) input indices of each finite tet, CGAL's (positive) orientation
+  std::vector<index_t> tets;       // (T, 4) input indices of each finite tet, CGAL's (positive) orientation,
+                                   // in canonical order (smallest id first; rows ascending), whatever the
+                                   // insertion's thread schedule
   std::vector<index_t> neighbors;  // (T, 4) tet opposite vertex k of tet t, or kNone if that side is the hull
   std::vector<index_t> duplicate_of;  // (N,) index of the first exact duplicate kept, or kNone if unique
   index_t num_vertices = 0;        // points that own a power cell (appear in a tet)
