@@ -28,7 +28,8 @@ import trimesh
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "load_mesh", "unique_faces", "classify", "components", "boundary_edges"]
+__all__ = ["FORMATS", "MERGE_TOLERANCE", "load_mesh", "merge_vertices", "check_ply", "check_off", "unique_faces",
+           "classify", "components", "boundary_edges"]
 
 #: File suffixes load_mesh reads (trimesh's loaders).
 FORMATS = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
@@ -41,9 +42,12 @@ def _one_line(text: str) -> str:
 def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     """Load a triangle mesh from OBJ, PLY, OFF, STL or GLB, with vertices merged by position.
 
-    Scenes (GLB/GLTF, multi-object OBJ) are flattened with their transforms and concatenated. Vertices at
-    the same position are merged (OBJ files split them along UV seams), unreferenced vertices dropped and
-    faces that repeat a vertex index (collapsed by the merge) removed; no other repair is done.
+    Scenes (GLB/GLTF, multi-object OBJ) are flattened with their transforms and concatenated. PLY and OFF
+    files are first checked against their headers (`check_ply`, `check_off`). Vertices at the same position
+    are merged (OBJ files split them along UV seams; STL stores each triangle's corners), unreferenced
+    vertices dropped and faces that repeat a vertex index (collapsed by the merge) removed; no other repair
+    is done. "The same position" means within `MERGE_TOLERANCE` of the bounding box's largest side (see
+    `merge_vertices`), so the merge neither overflows nor collapses vertices at any coordinate scale.
 
     Args:
         path: a mesh file.
@@ -53,8 +57,9 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: one line naming the file and the problem: unsupported suffix, unreadable file, no
-            faces, non-finite (NaN/inf) vertices, or face indices out of range.
+        ValueError: one line naming the file and the problem: unsupported suffix, unreadable file, element
+            counts that disagree with the header, no faces, non-finite (NaN/inf) vertices, or face indices
+            out of range.
     """
     path = Path(path)
     if not path.exists():
@@ -65,6 +70,16 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     if suffix not in FORMATS:
         raise ValueError(f"{path}: unsupported mesh format {suffix or '(none)'!r}; "
                          f"use one of {', '.join(FORMATS)}")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: no faces (empty file)")
+    try:
+        if suffix == ".ply":
+            check_ply(path)
+        elif suffix == ".off":
+            check_off(path)
+    except ValueError as exc:  # same form as trimesh's failures below
+        detail = str(exc).removeprefix(f"{path}: ")
+        raise ValueError(f"{path}: cannot read mesh ({detail})") from None
     try:
         loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files; report them as one line
@@ -93,20 +108,292 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     if f.min() < 0 or f.max() >= len(v):
         raise ValueError(f"{path}: face indices out of range [0, {len(v)})")
 
-    mesh = trimesh.Trimesh(v, f, process=False)
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    faces = np.asarray(mesh.faces)
-    ok = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    v, f = merge_vertices(v, f)
+    ok = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
     if not ok.all():
         log.info("%s: dropped %d faces that repeat a vertex after merging", path, int((~ok).sum()))
         if not ok.any():
             raise ValueError(f"{path}: no faces left (every face repeats a vertex)")
-        mesh.update_faces(ok)
-    mesh.remove_unreferenced_vertices()
-    out = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
-                          process=False)
+        f = f[ok]
+    used = np.zeros(len(v), bool)
+    used[f.ravel()] = True
+    if not used.all():  # drop unreferenced vertices, keeping the order of the rest
+        remap = np.cumsum(used) - 1
+        v, f = v[used], remap[f]
+    out = trimesh.Trimesh(v, f, process=False)
     log.debug("%s: %d vertices, %d faces", path, len(out.vertices), len(out.faces))
     return out
+
+
+#: Vertices closer than this fraction of the bounding box's largest side count as one position
+#: (trimesh's `tol.merge` 1e-8, made relative so that it means the same at every coordinate scale).
+MERGE_TOLERANCE = 1e-8
+
+
+def merge_vertices(vertices, faces, tolerance: float = MERGE_TOLERANCE) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices that round to the same position on a grid of `tolerance` × the bounding box's largest
+    side, among the vertices the faces use (the others are dropped).
+
+    Coordinates are measured from the box's minimum corner in units of its largest side, so the grid keys
+    stay within [0, 1 / tolerance] whatever the scale or position: no integer overflow at 1e12 (trimesh's
+    absolute 1e-8 grid overflows int64 past ~9e10), no collapse of a mesh 1e-12 across, no lost precision
+    for a mesh translated far from the origin. Like trimesh's, the grid can keep two vertices apart that
+    straddle a cell boundary; exact duplicates always merge.
+
+    Args:
+        vertices: (V, 3) float, finite.
+        faces: (F, 3) integer indices into vertices.
+        tolerance: grid cell size relative to the box's largest side, in (0, 1).
+
+    Returns:
+        vertices: (V', 3) float64, the first occurrence of each position, in input order.
+        faces: (F, 3) int64, indices into the merged vertices.
+    """
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if not 0 < tolerance < 1:
+        raise ValueError(f"tolerance must be in (0, 1), got {tolerance}")
+    if not np.isfinite(v).all():
+        raise ValueError("vertices must be finite to merge them")
+    used = np.unique(f.ravel())  # ascending, so merged vertices keep the input order (as trimesh's)
+    if len(used) == 0:
+        return np.zeros((0, 3)), f
+    p = v[used]
+    lo = p.min(axis=0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = p - lo  # in [0, extent]: measured from the box's corner, so a far translation costs no precision
+        if not np.isfinite(d).all():  # a box wider than the largest float (coordinates near +-1e308)
+            d = p * 0.5 - lo * 0.5
+    extent = float(d.max())
+    if extent > 0:
+        keys = np.round(d / extent / tolerance).astype(np.int64)  # in [0, 1 / tolerance]: cannot overflow
+    else:
+        keys = np.zeros(p.shape, np.int64)  # one point
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    # Number the merged vertices in input order, keeping each group's first member's position.
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(len(first), np.int64)
+    rank[order] = np.arange(len(first))
+    new_index = np.full(len(v), -1, np.int64)
+    new_index[used] = rank[inverse]
+    return v[used[first[order]]], new_index[f]
+
+
+# -------------------------------------------------------------------------------------- header checks
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_header(path: Path, data: bytes):
+    """(format, [(element, count, [(name, dtype or (count dtype, item dtype))])], data offset)."""
+    if not data.startswith(b"ply"):
+        raise ValueError(f"{path}: not a PLY file (no 'ply' magic line)")
+    end = data.find(b"end_header")
+    if end < 0:
+        raise ValueError(f"{path}: PLY header has no 'end_header' line")
+    nl = data.find(b"\n", end)
+    start = len(data) if nl < 0 else nl + 1
+    try:
+        lines = data[:end].decode("ascii").splitlines()[1:]
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: PLY header is not ASCII text") from None
+    fmt, elements = None, []
+    for number, line in enumerate(lines, start=2):
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        bad = ValueError(f"{path}: malformed PLY header line {number}: {' '.join(words)[:80]!r}")
+        if words[0] == "format":
+            if len(words) < 2 or words[1] not in ("ascii", "binary_little_endian", "binary_big_endian"):
+                raise bad
+            fmt = words[1]
+        elif words[0] == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise bad
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property":
+            if not elements:
+                raise ValueError(f"{path}: PLY header line {number} declares a property before any element")
+            if len(words) == 3 and words[1] in _PLY_TYPES:
+                elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+            elif (len(words) == 5 and words[1] == "list" and words[2] in _PLY_TYPES
+                  and words[3] in _PLY_TYPES and _PLY_TYPES[words[2]][0] in "iu"):
+                elements[-1][2].append((words[4], (_PLY_TYPES[words[2]], _PLY_TYPES[words[3]])))
+            else:
+                raise bad
+        else:
+            raise bad
+    if fmt is None:
+        raise ValueError(f"{path}: PLY header has no 'format' line")
+    return fmt, elements, start
+
+
+def _ply_ascii_rows(path: Path, body: bytes, elements) -> None:
+    rows = [r.split() for r in body.splitlines() if r.strip()]
+    pos = 0
+    for name, count, props in elements:
+        block = rows[pos:pos + count]
+        if len(block) < count:
+            raise ValueError(f"{path}: PLY header declares {count} '{name}' elements but the file holds "
+                             f"only {len(block)}")
+        if all(isinstance(dt, str) for _, dt in props):
+            sizes = np.fromiter((len(r) for r in block), np.int64, len(block))
+            wrong = np.flatnonzero(sizes != len(props))
+            if len(wrong):
+                raise ValueError(f"{path}: PLY '{name}' element {int(wrong[0])} has {int(sizes[wrong[0]])} values, "
+                                 f"its header declares {len(props)} properties")
+        else:
+            for i, row in enumerate(block):
+                at = 0
+                for _, dt in props:
+                    if isinstance(dt, str):
+                        at += 1
+                    else:
+                        try:
+                            n = int(row[at])
+                        except (IndexError, ValueError):
+                            n = -1
+                        if n < 0:
+                            at = -1
+                            break
+                        at += 1 + n
+                if at != len(row):
+                    raise ValueError(f"{path}: PLY '{name}' element {i} does not match its header's "
+                                     f"properties ({len(row)} values)")
+        pos += count
+    if pos < len(rows):
+        raise ValueError(f"{path}: PLY file holds {len(rows) - pos} data lines more than its header declares")
+
+
+def _uniform_list_rows(body: bytes, pos: int, count: int, props, endian: str) -> int:
+    """End offset of an element with one list property whose rows all have the first row's length, else 0."""
+    lists = [i for i, (_, dt) in enumerate(props) if not isinstance(dt, str)]
+    if count == 0 or len(lists) != 1:
+        return 0
+    k = lists[0]
+    before = sum(np.dtype(dt).itemsize for _, dt in props[:k])
+    after = sum(np.dtype(dt).itemsize for _, dt in props[k + 1:])
+    cdt, idt = np.dtype(endian + props[k][1][0]), np.dtype(props[k][1][1])
+    if pos + before + cdt.itemsize > len(body):
+        return 0
+    n = int(np.frombuffer(body, cdt, 1, pos + before)[0])
+    stride = before + cdt.itemsize + n * idt.itemsize + after
+    if n < 0 or pos + count * stride > len(body):
+        return 0
+    lengths = np.ndarray((count,), cdt, buffer=body, offset=pos + before, strides=(stride,))
+    return pos + count * stride if (lengths == n).all() else 0
+
+
+def _ply_binary_rows(path: Path, body: bytes, elements, endian: str) -> None:
+    pos = 0
+    for name, count, props in elements:
+        if all(isinstance(dt, str) for _, dt in props):
+            size = sum(np.dtype(dt).itemsize for _, dt in props)
+            if pos + count * size > len(body):
+                have = (len(body) - pos) // size if size else 0
+                raise ValueError(f"{path}: PLY header declares {count} '{name}' elements but the binary data "
+                                 f"holds only {max(have, 0)}")
+            pos += count * size
+            continue
+        if _uniform_list_rows(body, pos, count, props, endian):
+            pos = _uniform_list_rows(body, pos, count, props, endian)
+            continue
+        for i in range(count):  # list properties whose lengths vary: walk the rows
+            for _, dt in props:
+                if isinstance(dt, str):
+                    pos += np.dtype(dt).itemsize
+                    continue
+                cdt = np.dtype(endian + dt[0])
+                if pos + cdt.itemsize > len(body):
+                    pos = len(body) + 1
+                    break
+                n = int(np.frombuffer(body, cdt, 1, pos)[0])
+                pos += cdt.itemsize + n * np.dtype(dt[1]).itemsize
+            if pos > len(body):
+                raise ValueError(f"{path}: PLY header declares {count} '{name}' elements but the binary data "
+                                 f"holds only {i}")
+    if pos < len(body):
+        raise ValueError(f"{path}: PLY binary data has {len(body) - pos} bytes more than its header declares")
+
+
+def check_ply(path: str | os.PathLike) -> dict[str, int]:
+    """Check a PLY file's data against its header: every element count, row and (binary) byte.
+
+    trimesh's ASCII reader takes a short file without a word (a header of 5,000 vertices over 2,500 rows
+    gives 2,500 points), so loaders call this first.
+
+    Args:
+        path: a .ply file.
+
+    Returns:
+        {element name: count} as the header declares them.
+
+    Raises:
+        ValueError: one line naming the file and the first disagreement, or a missing 'vertex' element.
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    fmt, elements, start = _ply_header(path, data)
+    counts = {name: count for name, count, _ in elements}
+    if "vertex" not in counts:
+        raise ValueError(f"{path}: PLY header declares no 'vertex' element")
+    body = data[start:]
+    if fmt == "ascii":
+        _ply_ascii_rows(path, body, elements)
+    else:
+        _ply_binary_rows(path, body, elements, "<" if fmt == "binary_little_endian" else ">")
+    return counts
+
+
+def check_off(path: str | os.PathLike) -> tuple[int, int]:
+    """Check an OFF file's vertex and face lines against the counts in its header (as trimesh reads it:
+    '#' comments and blank lines ignored, one vertex or face a line).
+
+    Returns:
+        (vertices, faces) as the header declares them.
+
+    Raises:
+        ValueError: one line naming the file and the first disagreement.
+    """
+    import re
+
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not an OFF file (not text)") from None
+    lines = [line.split("#", 1)[0].strip() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    head = re.match(r"^C?OFF(?=\s|$)", lines[0]) if lines else None
+    if head is None:
+        raise ValueError(f"{path}: not an OFF file (no 'OFF' header)")
+    rest = lines[0][head.end():].split()
+    body = lines[1:] if not rest else [" ".join(rest)] + lines[1:]
+    counts = body[0].split() if body else []
+    if len(counts) < 2 or not all(c.isdigit() for c in counts[:3]):
+        raise ValueError(f"{path}: OFF header has no valid vertex/face count line")
+    nv, nf = int(counts[0]), int(counts[1])
+    ne = int(counts[2]) if len(counts) > 2 else 0
+    data = body[1:]
+    if len(data) < nv:
+        raise ValueError(f"{path}: OFF header declares {nv} vertices but the file holds only {len(data)} lines")
+    short = [i for i, line in enumerate(data[:nv]) if len(line.split()) < 3]
+    if short:
+        raise ValueError(f"{path}: OFF vertex {short[0]} has fewer than 3 coordinates")
+    faces = data[nv:nv + nf]
+    if len(faces) < nf:
+        raise ValueError(f"{path}: OFF header declares {nf} faces but the file holds only {len(faces)}")
+    for i, line in enumerate(faces):
+        words = line.split()
+        if not words[0].isdigit() or len(words) < int(words[0]) + 1:
+            raise ValueError(f"{path}: OFF face {i} does not list the vertex count it declares")
+    extra = len(data) - nv - nf
+    if extra > ne:
+        raise ValueError(f"{path}: OFF file holds {extra} lines more than its header declares")
+    return nv, nf
 
 
 def unique_faces(faces) -> np.ndarray:

@@ -1,16 +1,22 @@
 """The `dmesh` console script.
 
 Each subcommand is a module in `eval/commands/` defining `NAME`, `HELP`, `add_arguments(parser)` and
-`run(args) -> int`; they are discovered here, so adding a command never edits this file. Failures print
-one line to stderr and exit non-zero.
+`run(args) -> int`; they are discovered here, so adding a command never edits this file.
+
+Every failure is one line on stderr, `dmesh <command>: error: <what is wrong>`, with exit status 2: argparse's
+own errors (without the usage block), and the ValueError, OSError, MemoryError or `CliError` a command
+raises. Commands check their inputs and output paths (`check_output_file`, `check_output_dir`) before any
+work starts, so a failure leaves no partial output.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
+from pathlib import Path
 
 import eval.commands as commands_pkg
 
@@ -19,6 +25,63 @@ log = logging.getLogger("dmesh")
 
 class CliError(Exception):
     """A user-facing failure: printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its errors on one line (`dmesh <command>: error: ...`) instead of the usage block."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
+def one_line(text) -> str:
+    """`text` with its whitespace (newlines included) collapsed to single spaces."""
+    return " ".join(str(text).split())
+
+
+# --------------------------------------------------------------------------------------------- output paths
+
+def _nearest_existing(path: Path) -> Path:
+    path = path.absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def _check_can_create(path: Path, flag: str) -> None:
+    """ValueError unless `path` (absent) could be created: its nearest existing ancestor is a writable folder."""
+    above = _nearest_existing(path.absolute().parent)
+    if not above.is_dir():
+        raise ValueError(f"{flag} {path}: {above} is a file, not a folder")
+    if not os.access(above, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {path}: folder {above} is not writable")
+
+
+def check_output_file(path, flag: str = "-o", suffixes: tuple[str, ...] | None = None) -> Path:
+    """`path` as a Path if a file can be written there; else ValueError naming `flag` and the problem.
+
+    Checked before any work starts: not an existing folder, one of `suffixes` (when given), and a writable
+    folder to hold it (created if missing)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{flag} {path}: is a folder; give a file name")
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise ValueError(f"{flag} {path}: expected a file ending in {', '.join(suffixes)}")
+    _check_can_create(path, flag)
+    return path
+
+
+def check_output_dir(path, flag: str = "-o") -> Path:
+    """`path` as a Path if it is a writable folder or can be created as one; else ValueError."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{flag} {path}: is a file, not a folder")
+    if path.is_dir():
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise ValueError(f"{flag} {path}: folder is not writable")
+    else:
+        _check_can_create(path, flag)
+    return path
 
 
 def _commands():
@@ -32,7 +95,7 @@ def _commands():
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dmesh", description="DMesh: differentiable meshes on the CPU, "
+    parser = _Parser(prog="dmesh", description="DMesh: differentiable meshes on the CPU, "
                                      "with a benchmark and evaluation harness.")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars, warnings only")
@@ -59,10 +122,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("dmesh: interrupted", file=sys.stderr)
         return 130
-    except (CliError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+    except (CliError, ValueError, OSError, MemoryError) as exc:
         if args.verbose >= 2:
             raise
-        print(f"dmesh {args.command}: error: {exc}", file=sys.stderr)
+        msg = one_line(exc) or type(exc).__name__
+        if isinstance(exc, MemoryError):
+            msg = f"out of memory ({msg}); use smaller sizes"
+        print(f"dmesh {args.command}: error: {msg}", file=sys.stderr)
         return 2
 
 

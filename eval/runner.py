@@ -10,14 +10,28 @@ Flow of `run_sweep(sweep, work, ...)`:
 3. Prepare the inputs of the pending runs once per (shape, input kind, seed), cached beside the GT:
    `pc_n<N>_s<seed>.npz` holds `points` (N, 3) float32 and `normals` (N, 3) float32 (area-uniform samples
    of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).
-4. Run each pending run in a worker process (a local pool of `jobs` forked processes, each run in its own
-   process so that a per-run timeout or a crash in native code cannot take the sweep down; or Ray tasks with
-   `executor="ray"`). The worker calls the method, writes the output mesh atomically to
-   `WORK/meshes/<key[:2]>/<key>.ply`, computes `eval.metrics.compute_metrics(pred, gt)` in the normalised GT
-   frame, and hands the result back; only this (parent) process writes the store.
+4. Claim each pending run in the store (see "Sharing a store" below) and run it in a worker process (a
+   local pool of `jobs` forked processes, each run in its own process so that a per-run timeout or a crash in
+   native code cannot take the sweep down; or Ray tasks with `executor="ray"`). The worker calls the method,
+   writes the output mesh atomically to `WORK/meshes/<key[:2]>/<key>.ply`, computes
+   `eval.metrics.compute_metrics(pred, gt)` in the normalised GT frame, and hands the result back; only this
+   (parent) process writes the store.
 
 Every failure of a run (exception, empty mesh, timeout, worker crash) is stored as a `failed` row with a
 one-line error, and the sweep goes on.
+
+Sharing a store. Two sweeps (processes) may run on one work folder and store at once; each run is computed
+once. A run is claimed atomically with a lease (this process's id and host, a token of this sweep and a
+heartbeat; `eval.store.Store.claim`), and this process refreshes the heartbeat every `lease_s / 6` seconds
+from its wait loop while it holds runs (not from a thread: the local pool forks, and forking a process with a
+second thread that may hold a lock is asking for a deadlock). A run that another live sweep holds is put
+aside and asked about again every 2 s: this sweep *waits* for it rather than computing it twice or returning
+without it, so that when `run_sweep` returns every run of the sweep is stored and its reports are complete.
+Runs that another sweep finished meanwhile are counted in `SweepSummary.elsewhere` ("finished by another
+sweep" in the summary line). When the holder dies, its runs are taken over: at once when it ran on this host
+(its process is gone), after `lease_s` seconds without a heartbeat when it ran on another one. A `done` row
+is never overwritten, and a sweep whose run was taken over (it stalled longer than `lease_s`) does not store
+its late outcome. On the way out (also on an exception or Ctrl-C) the sweep releases what it still holds.
 """
 from __future__ import annotations
 
@@ -38,8 +52,8 @@ from typing import Callable
 
 import numpy as np
 
-from eval.io import atomic_path, write_text
-from eval.store import Store
+from eval.io import atomic_path, honour_umask, write_mesh, write_text
+from eval.store import LEASE_S, Lease, Store
 from eval.sweep import RunSpec, ShapeRef, Sweep, build_config, expand, get_method
 
 log = logging.getLogger(__name__)
@@ -56,10 +70,13 @@ class RunnerConfig:
     jobs: int = 1                  # concurrent runs (worker processes or Ray tasks)
     executor: str = "local"        # local (process pool) or ray
     retry_failed: bool = False     # rerun runs stored as failed
+    lease_s: float = LEASE_S       # a run whose holder sent no heartbeat for this many seconds is taken over
 
     def __post_init__(self):
         if not isinstance(self.jobs, int) or self.jobs < 1:
             raise ValueError(f"RunnerConfig.jobs: expected a positive integer, got {self.jobs!r}")
+        if not isinstance(self.lease_s, (int, float)) or not self.lease_s > 0:
+            raise ValueError(f"RunnerConfig.lease_s: expected a positive number of seconds, got {self.lease_s!r}")
         if self.executor not in EXECUTORS:
             raise ValueError(f"RunnerConfig.executor: expected one of {EXECUTORS}, got {self.executor!r}")
 
@@ -73,11 +90,20 @@ class SweepSummary:
     """What `run_sweep` did: counts of runs by outcome and the store path."""
 
     total: int = 0
-    skipped: int = 0      # already done (or failed, without retry_failed)
-    done: int = 0
-    failed: int = 0
+    skipped: int = 0      # already done (or failed, without retry_failed) when the sweep started
+    done: int = 0         # computed by this sweep
+    failed: int = 0       # failed in this sweep
+    elsewhere: int = 0    # finished (done or failed) by another sweep sharing the store; this one waited
     db: str = ""
     keys: list[str] = dataclasses.field(default_factory=list)
+
+    def line(self) -> str:
+        """One line for the CLI, e.g. "3 runs: 1 done now, 0 failed now, 0 already stored, 2 finished by
+        another sweep sharing the store"."""
+        text = f"{self.total} runs: {self.done} done now, {self.failed} failed now, {self.skipped} already stored"
+        if self.elsewhere:
+            text += f", {self.elsewhere} finished by another sweep sharing the store"
+        return text
 
 
 # --------------------------------------------------------------------------------------------------- inputs
@@ -111,8 +137,7 @@ def prepare_gt(shape: ShapeRef, work: str | Path, radius: float = 1.0) -> tuple[
         raise ValueError(f"shape {shape.id}: unexpected category {category!r}")
     mesh, transform = normalize(mesh, radius=radius)
     folder.mkdir(parents=True, exist_ok=True)
-    with atomic_path(gt_path) as tmp:
-        mesh.export(tmp, file_type="ply")
+    write_mesh(mesh, gt_path)
     meta = {"id": shape.id, "kind": shape.kind, "source": shape.source, "gen_seed": shape.gen_seed,
             "category": category, "gt_hash": shape.gt_hash, "radius": radius,
             "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
@@ -171,6 +196,7 @@ def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, see
                         distance=settings["distance"])
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
         try:
+            honour_umask(tmp)  # mkdtemp makes it 0o700
             views.save(tmp)
             os.replace(tmp, path)
         except OSError:
@@ -235,8 +261,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         if not np.isfinite(np.asarray(mesh.vertices)).all():
             raise ValueError("the method returned a mesh with NaN or inf vertices")
         out = mesh_path_for(work, spec.key)
-        with atomic_path(out) as tmp:
-            mesh.export(tmp, file_type="ply")
+        write_mesh(mesh, out)
         from eval.metrics import compute_metrics
 
         # Mesh to DMesh: a method whose output keeps the GT vertices first says how many in its info
@@ -279,24 +304,102 @@ def _mp_context():
     return mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
 
 
-def _run_local(pending: list[tuple[RunSpec, Path]], work: str, jobs: int, timeout_s: float,
-               on_start: Callable, on_done: Callable) -> None:
+class _Claims:
+    """Hands out the pending runs of a sweep one at a time, each claimed in the store under the sweep's lease.
+
+    A run another live sweep holds is put aside and asked about again every `poll_s` seconds, until it is
+    finished there (`on_elsewhere`) or its holder is gone (then it is claimed here). A claimed run whose input
+    could not be prepared is stored as failed at once. `beat()` refreshes the lease's heartbeat at most every
+    `heartbeat_s` seconds; the executors call it from their wait loops.
+    """
+
+    def __init__(self, store: Store, lease: Lease, pending: list[RunSpec], gts: dict, *, stale_s: float,
+                 retry_attempts: dict, input_errors: dict, on_start: Callable, on_done: Callable,
+                 on_elsewhere: Callable):
+        self.store, self.lease, self.gts, self.stale_s = store, lease, gts, float(stale_s)
+        self.queue, self.deferred = list(pending), []
+        self.retry_attempts, self.input_errors = retry_attempts, input_errors
+        self.on_start, self.on_done, self.on_elsewhere = on_start, on_done, on_elsewhere
+        self.heartbeat_s = self.stale_s / 6.0
+        self.poll_s = min(2.0, self.heartbeat_s)
+        self._next_poll = 0.0
+        self._next_beat = time.monotonic() + self.heartbeat_s
+        self._told_waiting = False
+
+    @property
+    def finished(self) -> bool:
+        """Nothing left to claim or wait for."""
+        return not self.queue and not self.deferred
+
+    def next(self) -> tuple[RunSpec, Path] | None:
+        """The next run this sweep claimed, with its GT path; None when nothing can be claimed now."""
+        while True:
+            if not self.queue:
+                if not self.deferred or time.monotonic() < self._next_poll:
+                    return None
+                self.queue, self.deferred = self.deferred, []
+            spec = self.queue.pop(0)
+            claim = self.store.claim(spec.identity(), self.lease, stale_s=self.stale_s,
+                                     retry_attempts=self.retry_attempts.get(spec.key))
+            if claim == "held":
+                self.deferred.append(spec)
+                self._next_poll = time.monotonic() + self.poll_s
+                continue
+            if claim in ("done", "failed"):
+                self.on_elsewhere(spec, claim)
+                continue
+            if claim == "resumed":
+                log.info("run %s (%s on %s) was left running by an interrupted sweep; redoing it",
+                         spec.key[:12], spec.method, spec.shape.id)
+            self.on_start(spec)
+            err = self.input_errors.get((spec.shape.id, spec.input_kind, spec.seed))
+            if err is not None:
+                self.on_done(spec, {"status": "failed", "error": err})
+                continue
+            return spec, self.gts[spec.shape.id]
+
+    def beat(self) -> None:
+        """Refreshes the heartbeat of the runs this sweep holds, if `heartbeat_s` passed since the last one."""
+        now = time.monotonic()
+        if now < self._next_beat:
+            return
+        self._next_beat = now + self.heartbeat_s
+        try:
+            self.store.heartbeat(self.lease)
+        except Exception as exc:  # noqa: BLE001 - a busy store must not stop the sweep; the next beat retries
+            log.warning("could not refresh the heartbeat of this sweep's runs: %s", one_line(exc))
+
+    def wait(self) -> None:
+        """Sleeps until the runs put aside are due to be asked about again (nothing runs here meanwhile)."""
+        if not self._told_waiting:
+            log.info("waiting for %d run(s) that another sweep sharing the store is computing",
+                     len(self.deferred))
+            self._told_waiting = True
+        self.beat()
+        time.sleep(min(self.poll_s, max(0.05, self._next_poll - time.monotonic())))
+
+
+def _run_local(claims: _Claims, work: str, jobs: int, timeout_s: float, on_done: Callable) -> None:
     ctx = _mp_context()
-    queue = list(pending)
     active: dict = {}  # conn -> (proc, spec, deadline)
-    while queue or active:
-        while queue and len(active) < jobs:
-            spec, gt_path = queue.pop(0)
-            on_start(spec)
+    while True:
+        while len(active) < jobs and (item := claims.next()) is not None:
+            spec, gt_path = item
             parent_conn, child_conn = ctx.Pipe(duplex=False)
             proc = ctx.Process(target=_child, args=(spec, str(gt_path), str(work), child_conn), daemon=True)
             proc.start()
             child_conn.close()
             active[parent_conn] = (proc, spec, time.monotonic() + timeout_s)
+        if not active:
+            if claims.finished:
+                return
+            claims.wait()
+            continue
         now = time.monotonic()
         soonest = min(d for _, _, d in active.values())
         ready = mp_wait(list(active) + [p.sentinel for p, _, _ in active.values()],
                         timeout=max(0.0, min(soonest - now, 1.0)))
+        claims.beat()
         for conn in list(active):
             proc, spec, deadline = active[conn]
             outcome = None
@@ -329,21 +432,24 @@ def _import_ray():
     return ray
 
 
-def _run_ray(pending: list[tuple[RunSpec, Path]], work: str, jobs: int, timeout_s: float,
-             on_start: Callable, on_done: Callable) -> None:
+def _run_ray(claims: _Claims, work: str, jobs: int, timeout_s: float, on_done: Callable) -> None:
     ray = _import_ray()
     if not ray.is_initialized():
         ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
     remote = ray.remote(num_cpus=1, max_retries=0)(execute_run)
-    queue = list(pending)
     active: dict = {}  # ObjectRef -> (spec, deadline)
-    while queue or active:
-        while queue and len(active) < jobs:
-            spec, gt_path = queue.pop(0)
-            on_start(spec)
+    while True:
+        while len(active) < jobs and (item := claims.next()) is not None:
+            spec, gt_path = item
             ref = remote.remote(spec, str(gt_path), str(work), get_method(spec.method))
             active[ref] = (spec, time.monotonic() + timeout_s)
+        if not active:
+            if claims.finished:
+                return
+            claims.wait()
+            continue
         ready, _ = ray.wait(list(active), num_returns=1, timeout=1.0)
+        claims.beat()
         for ref in list(active):
             spec, deadline = active[ref]
             outcome = None
@@ -394,16 +500,17 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
     shapes, gts = resolve_and_prepare_shapes(sweep, work)
     runs = expand(sweep, shapes)
     summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
+    lease = Lease.new()
     with Store(runner.db_path) as store:
-        pending = []
+        pending, retry_attempts = [], {}
         for spec in runs:
-            status = store.status(spec.key)
+            row = store.get(spec.key)
+            status = None if row is None else row["status"]
             if status == "done" or (status == "failed" and not runner.retry_failed):
                 summary.skipped += 1
                 continue
-            if status == "running":
-                log.info("run %s (%s on %s) was left running by an interrupted sweep; redoing it",
-                         spec.key[:12], spec.method, spec.shape.id)
+            if status == "failed":  # retried only if no other sweep retries it first (Store.claim)
+                retry_attempts[spec.key] = row["attempts"]
             pending.append(spec)
         log.info("sweep %s: %d runs, %d already stored, %d to run", sweep.name, len(runs), summary.skipped,
                  len(pending))
@@ -412,6 +519,7 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
 
         needed = sorted({(s.shape.id, s.input_kind, s.seed) for s in pending})
         by_id = {s.id: s for s in shapes}
+        input_errors = {}  # (shape id, kind, seed) -> error; its runs are stored failed when claimed
         for shape_id, kind, seed in progress(needed, desc="inputs", unit="input", leave=False):
             spec = next(s for s in pending if (s.shape.id, s.input_kind, s.seed) == (shape_id, kind, seed))
             try:
@@ -419,17 +527,18 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
             except Exception as exc:  # noqa: BLE001 - an input that cannot be prepared fails its runs
                 err = f"input preparation failed: {one_line(exc)}"
                 log.warning("%s %s seed %d: %s", shape_id, kind, seed, err)
-                for s in [s for s in pending if (s.shape.id, s.input_kind, s.seed) == (shape_id, kind, seed)]:
-                    store.mark_running(s.identity())
-                    store.finish(s.key, status="failed", error=err)
-                    summary.failed += 1
-                pending = [s for s in pending if (s.shape.id, s.input_kind, s.seed) != (shape_id, kind, seed)]
+                input_errors[(shape_id, kind, seed)] = err
 
         bar = progress(total=len(pending), desc=f"sweep {sweep.name}", unit="run")
 
         def on_start(spec: RunSpec) -> None:
-            store.mark_running(spec.identity())
             bar.set_postfix_str(f"{spec.method} / {spec.shape.id} / {spec.input_kind}", refresh=False)
+
+        def on_elsewhere(spec: RunSpec, status: str) -> None:
+            summary.elsewhere += 1
+            log.info("%s on %s (%s, seed %d): %s by another sweep sharing the store", spec.method, spec.shape.id,
+                     spec.input_kind, spec.seed, status)
+            bar.update(1)
 
         def on_done(spec: RunSpec, outcome: dict) -> None:
             if outcome["status"] == "done":
@@ -438,23 +547,33 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
                     mesh_path = os.path.relpath(mesh_path, runner.db_path.parent)
                 except ValueError:
                     pass
-                store.finish(spec.key, status="done", metrics=outcome["metrics"], timings=outcome["timings"],
-                             info=outcome.get("info"), peak_memory_mb=outcome.get("peak_memory_mb"),
-                             mesh_path=mesh_path)
+                stored = store.finish(spec.key, status="done", metrics=outcome["metrics"],
+                                      timings=outcome["timings"], info=outcome.get("info"),
+                                      peak_memory_mb=outcome.get("peak_memory_mb"), mesh_path=mesh_path, lease=lease)
+            else:
+                stored = store.finish(spec.key, status="failed", error=outcome["error"], lease=lease)
+                if stored:
+                    log.warning("%s on %s (%s, seed %d) failed: %s", spec.method, spec.shape.id, spec.input_kind,
+                                spec.seed, outcome["error"])
+            if not stored:  # another sweep took the run over (this one stalled past lease_s); its outcome wins
+                summary.elsewhere += 1
+            elif outcome["status"] == "done":
                 summary.done += 1
             else:
-                store.finish(spec.key, status="failed", error=outcome["error"])
                 summary.failed += 1
-                log.warning("%s on %s (%s, seed %d) failed: %s", spec.method, spec.shape.id, spec.input_kind,
-                            spec.seed, outcome["error"])
             bar.update(1)
 
+        claims = _Claims(store, lease, pending, gts, stale_s=runner.lease_s, retry_attempts=retry_attempts,
+                         input_errors=input_errors, on_start=on_start, on_done=on_done, on_elsewhere=on_elsewhere)
         execute = _run_ray if runner.executor == "ray" else _run_local
         try:
-            execute([(s, gts[s.shape.id]) for s in pending], str(work), runner.jobs, float(sweep.timeout_s),
-                    on_start, on_done)
+            execute(claims, str(work), runner.jobs, float(sweep.timeout_s), on_done)
         finally:
             bar.close()
+            try:
+                store.release(lease)
+            except Exception as exc:  # noqa: BLE001 - never hide the exception that brought us here
+                log.warning("could not release this sweep's runs: %s", one_line(exc))
     return summary
 
 

@@ -2,8 +2,18 @@
 
 Rows are keyed by the run key of `eval.sweep.run_key` (a SHA-256 hex string). A row's `status` is
 `running` while a process works on it, then `done` (with metrics) or `failed` (with the error message). The
-store uses the standard library's sqlite3 in WAL mode so readers (reports) never block the writer (runner).
-Only the parent process of a sweep writes; workers return their results to it.
+store uses the standard library's sqlite3 in WAL mode so readers (reports) never block the writers. In each
+sweep only the parent process writes; workers return their results to it.
+
+Sharing a store (DESIGN.md 8.5). Several sweeps (processes) may use one store at once. A run is claimed with
+a lease (`Store.claim`): the claiming process's id and host, a random token of the claiming sweep and a
+heartbeat time, written in one `BEGIN IMMEDIATE` transaction that also checks that the row is not `done`, not
+`failed` (unless the claimer asks to retry it) and not held by a live lease. A lease is live while its
+heartbeat is younger than `stale_s` seconds and, when it was taken on this host, its process still exists
+(a zombie counts as gone); a run whose lease is not live was interrupted and may be taken over. The holder
+refreshes its heartbeat (`Store.heartbeat`) while it works, stores the outcome only while it still holds the
+lease (`Store.finish(..., lease=)`), and frees what it holds when it stops (`Store.release`). `done` is never
+downgraded: every write that could replace a result is guarded by a status condition.
 
 Columns (all JSON columns hold UTF-8 JSON text):
     key            TEXT  run key, primary key
@@ -26,13 +36,23 @@ Columns (all JSON columns hold UTF-8 JSON text):
     started_at     TEXT  ISO-8601 UTC
     finished_at    TEXT  ISO-8601 UTC
     code_version   TEXT  package version + source hash (see `eval.sweep.code_version`)
+    lease_pid      INT   process id of the sweep that claimed the run last
+    lease_host     TEXT  host name of that process
+    lease_token    TEXT  random id of that sweep (one per `Lease`)
+    heartbeat_at   REAL  Unix time of the holder's last heartbeat (NULL once released)
+    attempts       INT   how many times the run was claimed
 """
 from __future__ import annotations
 
 import json
 import logging
+import os
+import socket
 import sqlite3
+import time
+import uuid
 from contextlib import contextmanager
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable
@@ -40,6 +60,8 @@ from typing import Any, Iterable
 log = logging.getLogger(__name__)
 
 STATUSES = ("done", "failed", "running")
+#: Default age in seconds after which a lease whose heartbeat was not refreshed is taken over.
+LEASE_S = 60.0
 
 _COLUMNS = {
     "key": "TEXT PRIMARY KEY",
@@ -62,9 +84,17 @@ _COLUMNS = {
     "started_at": "TEXT",
     "finished_at": "TEXT",
     "code_version": "TEXT",
+    "lease_pid": "INTEGER",
+    "lease_host": "TEXT",
+    "lease_token": "TEXT",
+    "heartbeat_at": "REAL",
+    "attempts": "INTEGER NOT NULL DEFAULT 0",
 }
 COLUMNS = tuple(_COLUMNS)
 _JSON_COLUMNS = ("config_json", "inputs_json", "metrics_json", "timings_json", "info_json")
+#: What a run produces (cleared when it is claimed again).
+_RESULT_COLUMNS = ("status", "error", "metrics_json", "timings_json", "info_json", "peak_memory_mb", "mesh_path",
+                   "started_at", "finished_at")
 
 
 def utc_now() -> str:
@@ -87,6 +117,66 @@ def _json_default(obj):
     return str(obj)
 
 
+@dataclass(frozen=True)
+class Lease:
+    """Who holds a run: one per sweep (`Lease.new()`), written into the rows it claims."""
+
+    pid: int      # process id of the claiming process
+    host: str     # its host name
+    token: str    # random id, so that two sweeps of one process (one after the other) are told apart
+
+    @classmethod
+    def new(cls) -> "Lease":
+        return cls(pid=os.getpid(), host=socket.gethostname(), token=uuid.uuid4().hex)
+
+
+def pid_alive(pid: int | None) -> bool:
+    """Whether process `pid` exists on this host and is not a zombie (Linux /proc; elsewhere kill(pid, 0))."""
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by another user
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True  # no /proc (or it vanished just now): trust kill()
+    state = stat.rsplit(")", 1)[-1].split()[:1]
+    return state not in (["Z"], ["X"])  # a killed process its parent has not reaped yet is gone too
+
+
+def lease_live(row, me: Lease, stale_s: float, now: float | None = None) -> bool:
+    """Whether the lease written in `row` (lease_* and heartbeat_at columns) still holds, seen from `me`.
+
+    Live: a heartbeat younger than `stale_s` seconds and, on this host, a process that still exists. A lease
+    of this very process under another token belongs to an earlier sweep of this process that stopped
+    without finishing (one process runs one sweep at a time), so it is not live either.
+    """
+    beat, token = row["heartbeat_at"], row["lease_token"]
+    if token is None or beat is None:
+        return False  # never leased (an older store), or released
+    if token == me.token:
+        return True
+    if (time.time() if now is None else now) - float(beat) > stale_s:
+        return False
+    if row["lease_host"] == me.host:
+        return row["lease_pid"] != me.pid and pid_alive(row["lease_pid"])
+    return True  # another host: only the heartbeat tells
+
+
+_PROCESS_LEASE: Lease | None = None
+
+
+def _process_lease() -> Lease:
+    global _PROCESS_LEASE
+    if _PROCESS_LEASE is None or _PROCESS_LEASE.pid != os.getpid():  # a forked child gets its own
+        _PROCESS_LEASE = Lease.new()
+    return _PROCESS_LEASE
+
+
 class Store:
     """The `runs` table of one SQLite file.
 
@@ -101,15 +191,31 @@ class Store:
         self._conn = sqlite3.connect(str(path), timeout=30.0, isolation_level=None)
         self._conn.row_factory = sqlite3.Row
         if self.path is not None:
-            self._conn.execute("PRAGMA journal_mode=WAL")
+            self._set_wal()
         self._conn.execute("PRAGMA synchronous=NORMAL")
         cols = ", ".join(f"{k} {v}" for k, v in _COLUMNS.items())
-        self._conn.execute(f"CREATE TABLE IF NOT EXISTS runs ({cols})")
-        have = {r["name"] for r in self._conn.execute("PRAGMA table_info(runs)")}
-        for name, decl in _COLUMNS.items():  # older stores gain new columns
-            if name not in have:
-                self._conn.execute(f"ALTER TABLE runs ADD COLUMN {name} {decl.replace('PRIMARY KEY', '')}")
-        self._conn.execute("CREATE INDEX IF NOT EXISTS runs_status ON runs(status)")
+        # One transaction, so that two processes opening a new (or older) store at once do not both migrate.
+        with self._tx():
+            self._conn.execute(f"CREATE TABLE IF NOT EXISTS runs ({cols})")
+            have = {r["name"] for r in self._conn.execute("PRAGMA table_info(runs)")}
+            for name, decl in _COLUMNS.items():  # older stores gain new columns
+                if name not in have:
+                    self._conn.execute(f"ALTER TABLE runs ADD COLUMN {name} {decl.replace('PRIMARY KEY', '')}")
+            self._conn.execute("CREATE INDEX IF NOT EXISTS runs_status ON runs(status)")
+
+    def _set_wal(self) -> None:
+        # Switching to WAL needs a moment alone with the file; a second process opening the store at the
+        # same time can get "database is locked" at once (no busy wait for this pragma), so retry briefly.
+        deadline = time.monotonic() + 30.0
+        while True:
+            try:
+                if self._conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
+                    self._conn.execute("PRAGMA journal_mode=WAL")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
 
     # -- context management
     def close(self) -> None:
@@ -132,8 +238,11 @@ class Store:
             raise
 
     # -- writing
-    def upsert(self, row: dict) -> None:
-        """Inserts or replaces the row with `row["key"]`; JSON columns accept dicts."""
+    def upsert(self, row: dict) -> bool:
+        """Inserts or replaces the row with `row["key"]`; JSON columns accept dicts.
+
+        A `done` row is only ever replaced by another `done` row. Returns whether the row was written.
+        """
         unknown = set(row) - set(COLUMNS)
         if unknown:
             raise ValueError(f"Store.upsert: unknown columns {sorted(unknown)}")
@@ -143,28 +252,126 @@ class Store:
         names = ", ".join(values)
         marks = ", ".join(f":{k}" for k in values)
         with self._tx():
+            if row["status"] != "done" and self._status(row.get("key")) == "done":
+                log.warning("Store.upsert: run %s is done; not replacing it with a %s row", row.get("key"),
+                            row["status"])
+                return False
             self._conn.execute(f"INSERT OR REPLACE INTO runs ({names}) VALUES ({marks})", values)
+        return True
 
-    def mark_running(self, row: dict) -> None:
-        """Records that `row` (identity columns) has started now; clears any previous result."""
-        self.upsert({**row, "status": "running", "started_at": utc_now(), "finished_at": None, "error": None,
-                     "metrics_json": None, "timings_json": None, "info_json": None, "peak_memory_mb": None,
-                     "mesh_path": None})
+    def claim(self, row: dict, lease: Lease, *, stale_s: float = LEASE_S,
+              retry_attempts: int | None = None) -> str:
+        """Claims run `row["key"]` for `lease` in one transaction, unless it is finished or held elsewhere.
+
+        Args:
+            row: the run's identity columns (key, method, shape, ...); used when the run is new.
+            lease: the claiming sweep.
+            stale_s: a lease whose heartbeat is older than this many seconds is taken over.
+            retry_attempts: reclaim a `failed` row, but only if its `attempts` still equals this value (the
+                value the caller saw when it decided to retry), so that a failure another sweep stored
+                meanwhile is not retried twice. None: a failed row stays failed.
+
+        Returns:
+            "claimed" (new or retried run, now `running` under `lease`), "resumed" (a `running` row whose
+            lease was not live, taken over), "held" (a live lease of another sweep holds it), "done" or
+            "failed" (finished; untouched).
+        """
+        if not isinstance(lease, Lease):
+            raise TypeError(f"Store.claim: lease must be a Lease, got {type(lease).__name__}")
+        key = row["key"]
+        # A cheap read first: polling sweeps ask again and again about runs another sweep holds, and
+        # should not queue for the write lock each time. The decision is made again under the lock.
+        outcome = self._claim_outcome(self._lease_row(key), lease, stale_s, retry_attempts)
+        if outcome in ("held", "done", "failed"):
+            return outcome
+        with self._tx():
+            cur = self._lease_row(key)
+            outcome = self._claim_outcome(cur, lease, stale_s, retry_attempts)
+            if outcome in ("held", "done", "failed"):
+                return outcome
+            now, started = time.time(), utc_now()
+            lease_cols = {"lease_pid": lease.pid, "lease_host": lease.host, "lease_token": lease.token,
+                          "heartbeat_at": now}
+            if cur is None:
+                ident = {k: (_json(v) if k in _JSON_COLUMNS else v) for k, v in row.items()
+                         if k in COLUMNS and k not in _RESULT_COLUMNS and k not in lease_cols and k != "attempts"}
+                ident.update(lease_cols, status="running", started_at=started, attempts=1)
+                names, marks = ", ".join(ident), ", ".join(f":{k}" for k in ident)
+                self._conn.execute(f"INSERT INTO runs ({names}) VALUES ({marks})", ident)
+            else:
+                cleared = ", ".join(f"{c}=NULL" for c in _RESULT_COLUMNS if c not in ("status", "started_at"))
+                n = self._conn.execute(
+                    f"UPDATE runs SET status='running', started_at=:started, {cleared}, lease_pid=:lease_pid, "
+                    "lease_host=:lease_host, lease_token=:lease_token, heartbeat_at=:heartbeat_at, "
+                    "attempts=attempts+1 WHERE key=:key AND status!='done'",
+                    {**lease_cols, "started": started, "key": key}).rowcount
+                if n != 1:  # cannot happen under the lock; the guard is what keeps done rows done
+                    return "done"
+        return outcome
+
+    def _lease_row(self, key: str):
+        return self._conn.execute("SELECT status, lease_pid, lease_host, lease_token, heartbeat_at, attempts "
+                                  "FROM runs WHERE key=?", (key,)).fetchone()
+
+    @staticmethod
+    def _claim_outcome(cur, lease: Lease, stale_s: float, retry_attempts: int | None) -> str:
+        if cur is None:
+            return "claimed"
+        if cur["status"] == "done":
+            return "done"
+        if cur["status"] == "failed":
+            return "claimed" if retry_attempts is not None and cur["attempts"] == retry_attempts else "failed"
+        if cur["lease_token"] == lease.token:
+            return "claimed"  # already ours
+        return "held" if lease_live(cur, lease, stale_s) else "resumed"
+
+    def heartbeat(self, lease: Lease) -> int:
+        """Refreshes the heartbeat of every run `lease` holds; returns how many it holds."""
+        with self._tx():
+            return self._conn.execute("UPDATE runs SET heartbeat_at=? WHERE lease_token=? AND status='running'",
+                                      (time.time(), lease.token)).rowcount
+
+    def release(self, lease: Lease) -> int:
+        """Frees the runs `lease` still holds (they stay `running`, for any sweep to take over at once)."""
+        with self._tx():
+            return self._conn.execute("UPDATE runs SET heartbeat_at=NULL WHERE lease_token=? AND status='running'",
+                                      (lease.token,)).rowcount
+
+    def mark_running(self, row: dict) -> str:
+        """Claims `row` (identity columns) for this process (`claim` with one lease per process).
+
+        Kept for callers without a lease of their own; a `done` row stays done.
+        """
+        return self.claim(row, _process_lease())
 
     def finish(self, key: str, *, status: str, error: str | None = None, metrics: dict | None = None,
                timings: dict | None = None, info: dict | None = None, peak_memory_mb: float | None = None,
-               mesh_path: str | None = None) -> None:
-        """Stores the outcome of the run `key` (status done or failed)."""
+               mesh_path: str | None = None, lease: Lease | None = None) -> bool:
+        """Stores the outcome of the run `key` (status done or failed).
+
+        Never replaces a `done` row. With `lease`, stores only while the run is `running` under that lease
+        (a sweep whose run was taken over keeps out). Returns whether the outcome was stored.
+
+        Raises:
+            ValueError: bad status, or no run `key` in the store.
+        """
         if status not in ("done", "failed"):
             raise ValueError(f"Store.finish: status must be 'done' or 'failed', got {status!r}")
+        sql = ("UPDATE runs SET status=?, error=?, metrics_json=?, timings_json=?, info_json=?, "
+               "peak_memory_mb=?, mesh_path=?, finished_at=?, heartbeat_at=NULL WHERE key=? AND status!='done'")
+        args = [status, error, _json(metrics), _json(timings), _json(info), peak_memory_mb, mesh_path, utc_now(), key]
+        if lease is not None:
+            sql += " AND status='running' AND lease_token=?"
+            args.append(lease.token)
         with self._tx():
-            cur = self._conn.execute(
-                "UPDATE runs SET status=?, error=?, metrics_json=?, timings_json=?, info_json=?, "
-                "peak_memory_mb=?, mesh_path=?, finished_at=? WHERE key=?",
-                (status, error, _json(metrics), _json(timings), _json(info), peak_memory_mb, mesh_path,
-                 utc_now(), key))
-            if cur.rowcount != 1:
-                raise ValueError(f"Store.finish: no run with key {key}")
+            if self._conn.execute(sql, args).rowcount == 1:
+                return True
+            current = self._status(key)
+        if current is None:
+            raise ValueError(f"Store.finish: no run with key {key}")
+        log.warning("Store.finish: run %s is %s%s; not storing this %s outcome", key[:12], current,
+                    " under another sweep's lease" if current == "running" else "", status)
+        return False
 
     def delete(self, keys: Iterable[str]) -> int:
         """Deletes the given runs; returns how many were removed."""
@@ -175,6 +382,9 @@ class Store:
     # -- reading
     def status(self, key: str) -> str | None:
         """The status of run `key`, or None if the store has no such run."""
+        return self._status(key)
+
+    def _status(self, key) -> str | None:
         r = self._conn.execute("SELECT status FROM runs WHERE key=?", (key,)).fetchone()
         return None if r is None else r["status"]
 

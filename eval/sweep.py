@@ -20,6 +20,10 @@ relative to the repository.
 Input kinds: "pointcloud" (`n_points` area-uniform samples with normals), "multiview" (a `views`-view
 capture at `resolution` and `distance`), and "mesh" (the normalised GT itself, for mesh to DMesh / Table 1;
 use `radius: 0.8` there, the paper's frame for that experiment).
+
+User-given values are checked here for every command: `parse_value` / `parse_sets` read `--set KEY=VALUE`
+values and sweep files as YAML (one loader, which also reads `1e-3` as a number), and `check_seed`,
+`check_points` and `check_capture_size` bound seeds and sizes, saying what a larger value would cost.
 """
 from __future__ import annotations
 
@@ -39,6 +43,129 @@ REPO = Path(__file__).resolve().parents[1]
 INPUT_KINDS = ("pointcloud", "multiview", "mesh")
 CATEGORIES = ("closed", "open", "mixed")
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+
+
+# --------------------------------------------------------------------------------------------------- values
+
+#: The largest seed: the results store keeps seeds as SQLite INTEGER (64-bit signed); numpy takes no negatives.
+MAX_SEED = 2**63 - 1
+#: The most points a cloud or a metric may sample (a sanity bound: 100x the paper's 100K).
+MAX_POINTS = 20_000_000
+#: Bytes per sampled point: float64 position and normal (what `datasets.sampling.sample_points` returns).
+POINT_BYTES = 48
+#: The most views and the largest image side of a capture.
+MAX_VIEWS = 10_000
+MAX_RESOLUTION = 8192
+#: Bytes per captured pixel (float32 diffuse and depth, a bool mask) and the most a capture may hold.
+PIXEL_BYTES = 9
+MAX_CAPTURE_BYTES = 16 * 2**30
+
+
+def _size_text(n_bytes: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n_bytes < 1024 or unit == "PiB":
+            return f"{n_bytes:.3g} {unit}"
+        n_bytes /= 1024
+    return ""  # unreachable
+
+
+def _integer(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{name}: expected an integer, got {value!r}")
+    return value
+
+
+def check_seed(name: str, value) -> int:
+    """`value` if it is a seed every generator and the store take (0 to 2**63 - 1), else ValueError."""
+    value = _integer(name, value)
+    if not 0 <= value <= MAX_SEED:
+        raise ValueError(f"{name}: a seed must be from 0 to 2**63 - 1 (numpy takes no negative seed, the "
+                         f"results store keeps 64-bit integers), got {value}")
+    return value
+
+
+def check_points(name: str, value, low: int = 1) -> int:
+    """`value` if it is a point or sample count from `low` to `MAX_POINTS`, else ValueError saying why."""
+    value = _integer(name, value)
+    if value < low:
+        raise ValueError(f"{name}: expected at least {low}, got {value}")
+    if value > MAX_POINTS:
+        raise ValueError(f"{name}: at most {MAX_POINTS:,} points, got {value:,} (their positions and normals "
+                         f"alone would need {_size_text(value * POINT_BYTES)} of memory)")
+    return value
+
+
+def check_capture_size(views, resolution, names: tuple[str, str] = ("views", "resolution")) -> None:
+    """ValueError unless `views` images of `resolution`^2 pixels are within the bounds above."""
+    views, resolution = _integer(names[0], views), _integer(names[1], resolution)
+    if views < 1 or resolution < 1:
+        raise ValueError(f"{names[0]} and {names[1]}: expected positive integers, got {views} and {resolution}")
+    need = _size_text(views * resolution**2 * PIXEL_BYTES)
+    if views > MAX_VIEWS:
+        raise ValueError(f"{names[0]}: at most {MAX_VIEWS:,} views, got {views:,} (their images at "
+                         f"{resolution}x{resolution} would need {need} of memory)")
+    if resolution > MAX_RESOLUTION:
+        raise ValueError(f"{names[1]}: at most {MAX_RESOLUTION}, got {resolution} ({views} images would need "
+                         f"{need} of memory)")
+    if views * resolution**2 * PIXEL_BYTES > MAX_CAPTURE_BYTES:
+        raise ValueError(f"{names[0]} {views} at {names[1]} {resolution}: the images would need {need} of memory, "
+                         f"more than the {_size_text(MAX_CAPTURE_BYTES)} a capture may hold; use fewer views or "
+                         f"a lower resolution")
+
+
+@functools.lru_cache(maxsize=None)
+def _yaml_loader():
+    """PyYAML's safe loader, also reading `1e-3` and `5E+4` as floats (YAML 1.1 needs a dot in them)."""
+    import re
+
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float",
+                                 re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+                                 list("-+0123456789"))
+    return Loader
+
+
+def _yaml_problem(exc: Exception) -> str:
+    """One line saying what is wrong in a YAML text and where (line and column, 1-based)."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    return " ".join(f"{where}{problem}".split())
+
+
+def load_yaml(text: str, what: str):
+    """The YAML document `text`, read by the one loader of every command; ValueError (one line naming
+    `what`, the line and the column) when it is not valid YAML."""
+    import yaml
+
+    try:
+        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{what}: not valid YAML ({_yaml_problem(exc)})") from None
+
+
+def parse_value(raw: str, what: str = "value"):
+    """A `--set` value as YAML: `7` int, `1e-3` float, `[1, 2]` list, `true` bool, `null` None, else the text."""
+    return load_yaml(raw, what)
+
+
+def parse_sets(items: list[str] | tuple[str, ...], flag: str = "--set") -> dict[str, Any]:
+    """`KEY=VALUE` strings to {key: value}, values parsed as YAML (`parse_value`); the last of a key wins.
+
+    The one parser of `--set` for every command (sweeps, `reconstruct`, `compare`). Raises ValueError (one
+    line) for an item without `=`, an empty key or a value that is not valid YAML."""
+    out: dict[str, Any] = {}
+    for item in items or ():
+        key, eq, raw = str(item).partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise ValueError(f"{flag} {item!r}: expected KEY=VALUE")
+        out[key] = parse_value(raw, f"{flag} {item!r}")
+    return out
 
 
 def default_data_root() -> Path:
@@ -71,7 +198,8 @@ class Sweep:
         for name in ("methods", "shapes", "inputs", "seeds"):
             value = getattr(self, name)
             if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
-                raise TypeError(f"Sweep.{name}: expected a list, got {type(value).__name__}")
+                raise TypeError(f"Sweep.{name}: expected a list, got {type(value).__name__} {value!r} "
+                                f"(a list is written [{value}])")
             object.__setattr__(self, name, tuple(value))
         if not self.methods:
             raise ValueError("Sweep.methods: at least one method is needed")
@@ -82,12 +210,17 @@ class Sweep:
             raise ValueError(f"Sweep.inputs: each must be one of {INPUT_KINDS}, got {list(self.inputs)}")
         if not all(isinstance(s, int) and not isinstance(s, bool) for s in self.seeds) or not self.seeds:
             raise ValueError(f"Sweep.seeds: expected a non-empty list of integers, got {list(self.seeds)}")
-        for name in ("n_points", "views", "resolution", "metric_samples"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"Sweep.{name}: expected a positive integer, got {getattr(self, name)!r}")
+        for s in self.seeds:
+            check_seed("Sweep.seeds", s)
+        for name in ("n_points", "metric_samples"):
+            check_points(f"Sweep.{name}", getattr(self, name))
+        check_capture_size(self.views, self.resolution, ("Sweep.views", "Sweep.resolution"))
         for name in ("distance", "radius", "timeout_s"):
-            if not float(getattr(self, name)) > 0:
-                raise ValueError(f"Sweep.{name}: expected a positive number, got {getattr(self, name)!r}")
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+                raise ValueError(f"Sweep.{name}: expected a positive number, got {value!r}")
+        if self.data_root is not None and not isinstance(self.data_root, (str, os.PathLike)):
+            raise ValueError(f"Sweep.data_root: expected a folder path, got {self.data_root!r}")
         if not isinstance(self.configs, Mapping):
             raise TypeError(f"Sweep.configs: expected a mapping method -> list of dicts, got "
                             f"{type(self.configs).__name__}")
@@ -96,7 +229,7 @@ class Sweep:
             if isinstance(lst, Mapping):
                 lst = [lst]
             if not isinstance(lst, (list, tuple)) or not all(isinstance(c, Mapping) for c in lst):
-                raise TypeError(f"Sweep.configs[{method!r}]: expected a list of dicts")
+                raise TypeError(f"Sweep.configs[{method!r}]: expected a list of dicts, got {lst!r}")
             configs[str(method)] = tuple(dict(c) for c in lst) or ({},)
         object.__setattr__(self, "configs", configs)
         if len(set(self.methods)) != len(self.methods) or len(set(self.shapes)) != len(self.shapes):
@@ -112,45 +245,58 @@ class Sweep:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Sweep":
+        """The sweep of the user-given mapping `d`; ValueError (one line) for any bad key, type or value."""
         unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"sweep: unknown keys {sorted(unknown)}")
-        return cls(**dict(d))
+        try:
+            return cls(**dict(d))
+        except TypeError as exc:  # a wrong type in the user's file or flags is a bad value there
+            raise ValueError(str(exc)) from None
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "Sweep":
-        import yaml
-
         path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"sweep file {path}: is a folder, not a YAML file")
         if not path.is_file():
             raise FileNotFoundError(f"sweep file {path} not found")
-        d = yaml.safe_load(path.read_text()) or {}
+        try:
+            text = path.read_text()
+        except UnicodeDecodeError:
+            raise ValueError(f"sweep file {path}: not a text file (not UTF-8)") from None
+        d = load_yaml(text, f"sweep file {path}")
+        if d is None:
+            raise ValueError(f"sweep file {path}: empty (expected methods: [...] and shapes: [...])")
         if not isinstance(d, Mapping):
-            raise ValueError(f"sweep file {path}: expected a mapping at the top level")
-        return cls.from_dict(d)
+            raise ValueError(f"sweep file {path}: expected a mapping at the top level, got {type(d).__name__}")
+        try:
+            return cls.from_dict(d)
+        except ValueError as exc:
+            raise ValueError(f"sweep file {path}: {exc}") from None
 
-    def with_overrides(self, sets: list[str]) -> "Sweep":
-        """Applies `key=value` overrides (values parsed as YAML).
+    def with_overrides(self, sets: list[str], strict: bool = True) -> "Sweep":
+        """Applies `key=value` overrides (values parsed as YAML by `parse_sets`).
 
         `field=value` sets a sweep field (e.g. `n_points=20000`); `method.key=value` sets a config
-        key for every config of that method (e.g. `psr.depth=7`).
+        key for every config of that method (e.g. `psr.depth=7`). With `strict`, the method must be one of
+        the sweep's (a typo would otherwise change nothing).
         """
-        import yaml
-
         d = self.to_dict()
-        for s in sets:
-            if "=" not in s:
-                raise ValueError(f"--set {s!r}: expected key=value")
-            key, raw = s.split("=", 1)
-            value = yaml.safe_load(raw)
+        for key, value in parse_sets(sets).items():
             if "." in key:
                 method, ckey = key.split(".", 1)
+                if strict and method not in d["methods"]:
+                    raise ValueError(f"--set {key}=...: {method!r} is not among the methods run "
+                                     f"({', '.join(d['methods'])})")
+                if not ckey:
+                    raise ValueError(f"--set {key}=...: expected METHOD.KEY=VALUE")
                 cfgs = d["configs"].get(method) or [{}]
                 d["configs"][method] = [{**c, ckey: value} for c in cfgs]
             elif key in d:
                 d[key] = value
             else:
-                raise ValueError(f"--set {s!r}: unknown sweep field {key!r}")
+                raise ValueError(f"--set {key}=...: unknown sweep field {key!r}")
         return Sweep.from_dict(d)
 
     def resolved_shapes(self) -> list[ShapeRef]:

@@ -35,6 +35,7 @@ def read_capture(directory: str | Path):
 def build_config(preset: str, seed: int, overrides: dict):
     """A `MultiViewConfig` from a preset, the seed and `--set` overrides (ValueError on unknown keys)."""
     from dmesh.recon.multiview import MultiViewConfig
+    from eval.commands.reconstruct import config_error
 
     fields = {f.name for f in dataclasses.fields(MultiViewConfig)}
     unknown = sorted(set(overrides) - fields)
@@ -42,11 +43,11 @@ def build_config(preset: str, seed: int, overrides: dict):
         raise ValueError(f"unknown config keys {unknown}; known: {sorted(fields)}")
     for key in ("refine_seeds", "steps_phase1", "steps_phase2", "freeze_phase2"):
         if key in overrides and not isinstance(overrides[key], (list, tuple, int)):
-            raise ValueError(f"--set {key}= expects an integer or a JSON list, got {overrides[key]!r}")
+            raise ValueError(f"--set {key}= expects an integer or a list like [1, 2], got {overrides[key]!r}")
     try:
         return MultiViewConfig.preset(preset, **{"seed": seed, **overrides})
-    except TypeError as exc:
-        raise ValueError(f"bad config value: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ValueError(config_error(exc, overrides)) from None
 
 
 def run_multiview(args, overrides: dict) -> int:

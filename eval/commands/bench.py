@@ -38,9 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report", metavar="DIR", help="also write reports (tables, figures, index.html) into DIR")
 
 
-def build_sweep(args, path=None):
+def build_sweep(args, path=None, strict: bool = True):
     """The `Sweep` of the YAML file `path` (default: `args.sweep`), or of the flags alone, with the flags
-    applied on top."""
+    applied on top (`strict`: see `Sweep.with_overrides`). ValueError (one line) for anything invalid."""
     from eval.sweep import Sweep
 
     path = path or getattr(args, "sweep", None)
@@ -57,9 +57,33 @@ def build_sweep(args, path=None):
             d[key] = list(v)
     if getattr(args, "data_root", None):
         d["data_root"] = args.data_root
-    if getattr(args, "timeout", None):
+    if getattr(args, "timeout", None) is not None:
         d["timeout_s"] = float(args.timeout)
-    return Sweep.from_dict(d).with_overrides(args.sets or [])
+    return Sweep.from_dict(d).with_overrides(args.sets or [], strict=strict)
+
+
+def check_work(work, db) -> None:
+    """Checks, before anything is written, that the work folder `work` can be used and that the results store
+    `db` (WORK/results.sqlite unless --db) is absent or a readable store; ValueError naming the problem."""
+    import sqlite3
+
+    from eval.cli import check_output_dir, check_output_file
+
+    check_output_dir(work, "--work")
+    db = check_output_file(db, "--db")
+    if not db.exists():
+        return
+    try:
+        con = sqlite3.connect(db.absolute().as_uri() + "?mode=ro", uri=True)
+        try:
+            tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise ValueError(f"results store {db}: cannot be read ({exc}); move it away or give another --db") from None
+    if tables and "runs" not in tables:
+        raise ValueError(f"results store {db}: a SQLite database of something else (tables {', '.join(tables)}, "
+                         f"no runs); give another --db")
 
 
 def summary_text(db, kinds=None, keys=None) -> str:
@@ -94,10 +118,14 @@ def run(args) -> int:
     sweep = build_sweep(args)
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed)
+    check_work(args.work, runner.db_path)
+    if args.report:
+        from eval.cli import check_output_dir
+
+        check_output_dir(args.report, "--report")
     summary = run_sweep(sweep, runner)
     print(summary_text(runner.db_path, sweep.inputs, summary.keys), end="")
-    print(f"{summary.total} runs: {summary.done} done now, {summary.failed} failed now, "
-          f"{summary.skipped} already stored; store {runner.db_path}")
+    print(f"{summary.line()}; store {runner.db_path}")
     if args.report:
         from eval.reports import write_reports
 

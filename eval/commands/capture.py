@@ -33,14 +33,20 @@ def run(args) -> int:
     from datasets import capture as cap
     from datasets.meshes import load_mesh
     from datasets.normalize import normalize
+    from eval.cli import check_output_dir
     from eval.progress import progress
+    from eval.sweep import check_capture_size, check_seed
 
     logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL logs its accelerate check at INFO
-    out = Path(args.out)
     if args.views < 1:
         raise ValueError(f"--views must be >= 1, got {args.views}")
     if args.resolution < 1:
         raise ValueError(f"--resolution must be >= 1, got {args.resolution}")
+    check_capture_size(args.views, args.resolution, ("--views", "--resolution"))
+    if not (args.distance > 0 and args.distance < float("inf")):
+        raise ValueError(f"--distance must be a positive finite number, got {args.distance}")
+    check_seed("--seed", args.seed)
+    out = check_output_dir(args.out, "-o")
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "cameras.json").exists())):
         raise ValueError(f"{out}: exists and is not a capture folder; choose another -o")
 
@@ -62,6 +68,9 @@ def run(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
+        from eval.io import honour_umask
+
+        honour_umask(tmp)  # mkdtemp makes it 0o700
         views.save(tmp)
         info = {"mesh": str(Path(args.mesh).resolve()), "faces": int(len(mesh.faces)),
                 "vertices": int(len(mesh.vertices)), "normalized": transform is not None,

@@ -29,16 +29,25 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from baselines import registry
 
+    from eval.cli import check_output_dir
+    from eval.commands.bench import check_work
     from eval.reports import render_figures, tables
     from eval.runner import RunnerConfig, run_sweep
     from eval.store import Store
-    from eval.sweep import MESH_SUFFIXES, Sweep, get_method
+    from eval.sweep import MESH_SUFFIXES, Sweep, check_points, check_seed, get_method
 
     mesh_path = Path(args.mesh)
+    if mesh_path.is_dir():
+        raise ValueError(f"mesh {mesh_path}: is a folder, not a mesh file")
     if not mesh_path.is_file():
         raise FileNotFoundError(f"mesh {mesh_path} not found")
     if not mesh_path.name.lower().endswith(MESH_SUFFIXES):
         raise ValueError(f"mesh {mesh_path}: unsupported file type; expected one of {', '.join(MESH_SUFFIXES)}")
+    check_points("--points", args.points)
+    check_seed("--seed", args.seed)
+    out = check_output_dir(args.out, "-o")
+    work = out / ".work"
+    check_work(work, work / "results.sqlite")
     if args.methods:
         methods = [get_method(m) for m in args.methods]
     else:
@@ -57,8 +66,6 @@ def run(args) -> int:
     sweep = Sweep(name=f"compare {mesh_path.name}", methods=tuple(m.name for m in methods),
                   shapes=(str(mesh_path.resolve()),), inputs=kinds, seeds=(args.seed,), n_points=args.points,
                   timeout_s=args.timeout).with_overrides(args.sets)
-    out = Path(args.out)
-    work = out / ".work"
     runner = RunnerConfig(work=str(work), jobs=args.jobs)
     summary = run_sweep(sweep, runner)
     keys = set(summary.keys)

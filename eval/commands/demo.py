@@ -84,16 +84,17 @@ def run(args) -> int:
     from baselines.registry import get_method
     from datasets import normalize, sampling, synthetic
     from dmesh.recon.pointcloud import PointCloudConfig, reconstruct
-    from eval.io import atomic_path, write_text
+    from eval.cli import check_output_dir
+    from eval.io import write_mesh, write_text
     from eval.metrics import compute_metrics
     from eval.progress import progress
+    from eval.sweep import check_points, check_seed
 
+    check_seed("--seed", args.seed)
     gt = synthetic.generate(args.shape, seed=args.seed)       # ValueError for unknown names, before any output
-    n_points = 5000 if args.tiny else args.points
-    n_metric = 5000 if args.tiny else args.metric_samples
-    if n_points < 10 or n_metric < 1:
-        raise ValueError(f"--points must be >= 10 and --metric-samples >= 1, got {n_points}, {n_metric}")
-    out = Path(args.out)
+    n_points = 5000 if args.tiny else check_points("--points", args.points, low=10)
+    n_metric = 5000 if args.tiny else check_points("--metric-samples", args.metric_samples)
+    out = check_output_dir(args.out, "-o")
     t_all = time.perf_counter()
     gt, _ = normalize.normalize(gt)
     points, normals = sampling.sample_points(gt, n_points, seed=args.seed)
@@ -127,13 +128,10 @@ def run(args) -> int:
         rows.append({"method": name, **{k: m[k] for k, _, _, _ in _COLUMNS if k != "time_s"}, "time_s": seconds})
 
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "gt.ply") as tmp:
-        gt.export(tmp, file_type="ply")
-    with atomic_path(out / "input_points.ply") as tmp:
-        trimesh.PointCloud(points).export(tmp, file_type="ply")
+    write_mesh(gt, out / "gt.ply")
+    write_mesh(trimesh.PointCloud(points), out / "input_points.ply")
     for name, (mesh, _, _) in results.items():
-        with atomic_path(out / f"{name}.obj") as tmp:
-            mesh.export(tmp, file_type="obj")
+        write_mesh(mesh, out / f"{name}.obj")
     cls = synthetic.SHAPES[args.shape][0]
     title = f"{args.shape} ({cls}), {n_points} points: CD p2s x1e-3 " + ", ".join(
         f"{r['method']} {r['cd_p2s'] * 1e3:.2f}" for r in rows)

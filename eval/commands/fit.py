@@ -50,11 +50,19 @@ def run(args) -> int:
     import trimesh
 
     import dmesh
+    from eval.cli import check_output_dir
     from eval.progress import progress
+    from eval.sweep import check_seed
 
     if args.steps is not None and args.steps < 1:
         raise ValueError(f"--steps must be at least 1, got {args.steps}")
-    out = Path(args.out)
+    check_seed("--seed", args.seed)
+    out = check_output_dir(args.out, "-o")
+    if out.is_dir() and any(out.iterdir()) and not (out / "result.json").is_file():
+        raise ValueError(f"-o {out}: a folder that holds no earlier `dmesh fit` output (no result.json); it "
+                         f"would be replaced: choose another -o")
+    if Path(args.mesh).is_dir():
+        raise ValueError(f"{args.mesh}: is a folder, not a mesh file")
     bar = progress(total=args.steps, desc="fit", unit="step")
 
     def callback(entry):
@@ -70,11 +78,14 @@ def run(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
+        from eval.io import honour_umask, write_mesh
+
+        honour_umask(tmp)  # mkdtemp makes it 0o700
         g = len(fitted["mesh"].vertices)
         reals = np.r_[np.ones(g), np.zeros(len(b.points) - g)]  # GT vertices real, inserted points not
         state = dmesh.DMesh(b.points, b.weights, reals, dtype=torch.float64)
         state.save(tmp / "dmesh.npz")
-        trimesh.Trimesh(b.points, b.faces, process=False).export(tmp / "mesh.ply")
+        write_mesh(trimesh.Trimesh(b.points, b.faces, process=False), tmp / "mesh.ply")
         summary = {
             "mesh": str(args.mesh), "shape": Path(args.mesh).stem, "preset": args.preset, "seed": args.seed,
             "RE": 100 * b.re, "FP": 100 * b.fp, "state_step": b.step, "final_RE": 100 * r.re,

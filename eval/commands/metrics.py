@@ -44,9 +44,10 @@ def _fmt(v) -> str:
 def run(args) -> int:
     from datasets.meshes import load_mesh
     from eval.metrics import compute_metrics
+    from eval.sweep import check_points, check_seed
 
-    if args.samples < 1:
-        raise ValueError(f"--samples must be >= 1, got {args.samples}")
+    check_points("--samples", args.samples)
+    check_seed("--seed", args.seed)
     pred = load_mesh(args.pred)
     gt = load_mesh(args.gt)
     m = compute_metrics(pred, gt, n=args.samples, seed=args.seed,

@@ -56,8 +56,18 @@ def add_arguments(p):
 def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
     """(G, 3) float64 points and (G, 3) normals or None from a point file or a sampled mesh.
 
-    Raises ValueError (one line) for unreadable, empty or malformed files."""
+    Raises ValueError (one line) for unreadable, empty or malformed files: a PLY whose data disagrees with
+    its header, arrays that are not real numbers (complex, boolean, text, objects, records), NaN or
+    infinite values."""
     path = Path(path)
+
+    def finite(pts, normals):
+        for what, arr in (("points", pts), ("normals", normals)):
+            if arr is not None and not np.isfinite(arr).all():
+                bad = int((~np.isfinite(arr).all(axis=1)).sum())
+                raise ValueError(f"{path}: {bad} {what} have NaN or infinite values")
+        return pts, normals
+
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     if path.is_dir():
@@ -76,10 +86,17 @@ def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
                 arr = np.loadtxt(path, ndmin=2, comments="#")
             except Exception as exc:
                 raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})".splitlines()[0]) from None
-        return _columns(arr, path)
+        kinds = {"c": "complex numbers", "b": "booleans", "O": "Python objects", "U": "text", "S": "text",
+                 "V": "records", "M": "dates", "m": "time spans"}
+        if arr.dtype.kind in kinds:  # e.g. complex would otherwise lose its imaginary part with a warning
+            raise ValueError(f"{path}: holds {kinds[arr.dtype.kind]} (dtype {arr.dtype}), expected real coordinates")
+        return finite(*_columns(arr, path))
     if suffix == ".ply":
         import trimesh
 
+        from datasets.meshes import check_ply
+
+        check_ply(path)  # trimesh reads an ASCII PLY shorter than its header says without a word
         try:
             loaded = trimesh.load(str(path), process=False)
         except Exception as exc:
@@ -97,7 +114,7 @@ def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
                 normals = None
         if len(pts) == 0:
             raise ValueError(f"{path}: no points")
-        return pts, normals
+        return finite(pts, normals)
     if suffix in MESH_SUFFIXES:
         return _sample_mesh(path, samples, seed)
     raise ValueError(f"{path}: unsupported input format {suffix or '(none)'!r}; use one of "
@@ -127,17 +144,39 @@ def _sample_mesh(path: Path, samples: int, seed: int):
 
 
 def _parse_overrides(items: list[str]) -> dict:
-    """KEY=VALUE strings to a dict of Python values (JSON literals, else strings)."""
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        key, value = item.split("=", 1)
-        try:
-            out[key.strip()] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key.strip()] = value
+    """KEY=VALUE strings to a dict of Python values, parsed as YAML like every `--set` (`eval.sweep.parse_sets`)."""
+    from eval.sweep import parse_sets
+
+    return parse_sets(items)
+
+
+def check_args(args) -> Path:
+    """Checks the flags, the input's existence and the output paths before any work; returns the output path."""
+    from eval.cli import check_output_file
+    from eval.sweep import check_points, check_seed
+
+    check_seed("--seed", args.seed)
+    check_points("--samples", args.samples)
+    if not Path(args.input).exists():
+        raise FileNotFoundError(f"{args.input}: no such {'folder' if args.kind == 'multiview' else 'file'}")
+    out = check_output_file(args.out, "-o", (".obj", ".ply", ".off", ".stl"))
+    check_output_file(out.with_name(out.stem + ".timings.json"), "-o")
+    if args.state is not None:
+        state = check_output_file(args.state, "--state")
+        if state.exists() and not state.is_file():
+            raise ValueError(f"--state {state}: not a regular file")
+        if state.resolve() in {Path(args.input).resolve(), out.resolve()}:
+            raise ValueError(f"--state {state}: is the input or the output; give a file of its own")
     return out
+
+
+def config_error(exc: Exception, overrides: dict) -> str:
+    """One line for a config that rejected `overrides`, naming them when the config's message does not."""
+    msg = " ".join(str(exc).split())
+    if overrides and not any(k in msg for k in overrides):
+        given = " ".join(f"{k}={v!r}" for k, v in overrides.items())
+        return f"bad config value (--set {given}): {msg}"
+    return msg if isinstance(exc, ValueError) else f"bad config value: {msg}"
 
 
 def build_config(preset: str, seed: int, steps: int | None, normals: bool, overrides: dict):
@@ -161,8 +200,8 @@ def build_config(preset: str, seed: int, steps: int | None, normals: bool, overr
     values.update(overrides)
     try:
         return PointCloudConfig.preset(preset, **values)
-    except TypeError as exc:
-        raise ValueError(f"bad config value: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ValueError(config_error(exc, overrides)) from None
 
 
 def write_outputs(out: Path, res, cfg, report: dict) -> None:
@@ -170,12 +209,11 @@ def write_outputs(out: Path, res, cfg, report: dict) -> None:
     info, last step and config), each under a temporary name, renamed when complete.
 
     Raises ValueError (one line) when the mesh has no faces; nothing is written then."""
-    from eval.io import atomic_path, write_text
+    from eval.io import write_mesh, write_text
 
     if len(res.mesh.faces) == 0:
         raise ValueError("the reconstruction has no faces (no point kept a real value above the threshold)")
-    with atomic_path(out) as tmp:
-        res.mesh.export(tmp, file_type=out.suffix.lower().lstrip("."))
+    write_mesh(res.mesh, out)
     report = {**report, "timings_s": {k: round(v, 4) for k, v in res.timings.items()}, "info": res.info,
               "final": res.history[-1] if res.history else None, "config": dataclasses.asdict(cfg)}
     timings_path = out.with_name(out.stem + ".timings.json")
@@ -187,9 +225,7 @@ def run(args) -> int:
     from dmesh.recon.pointcloud import reconstruct
     from eval.progress import progress
 
-    out = Path(args.out)
-    if out.suffix.lower() not in (".obj", ".ply", ".off", ".stl"):
-        raise ValueError(f"{out}: output must end in .obj, .ply, .off or .stl")
+    out = check_args(args)
     if args.kind == "multiview":
         from eval.commands._reconstruct_multiview import run_multiview
 

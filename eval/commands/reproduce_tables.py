@@ -56,12 +56,19 @@ def _runnable(sweep, explicit_methods: bool):
 
 
 def run(args) -> int:
-    from eval.commands.bench import build_sweep, summary_text
+    from eval.cli import check_output_dir
+    from eval.commands.bench import build_sweep, check_work, summary_text
     from eval.reports import write_reports
     from eval.runner import RunnerConfig, run_sweep
+    from eval.sweep import parse_sets
 
+    check_output_dir(args.out, "-o")
     if args.report_only:
         db = Path(args.db) if args.db else RunnerConfig(work=args.work).db_path
+        check_work(args.work, db)
+        if not db.is_file():
+            raise FileNotFoundError(f"no results store at {db}: run `dmesh reproduce-tables` without "
+                                    f"--report-only (or `dmesh bench`) first, or give --db / --work")
         paths = write_reports(db, args.out, work=Path(args.work), title="DMesh harness: stored runs",
                               renders=not args.no_renders, keys=None)
         print(f"wrote {len(paths)} report files from {db}; open {Path(args.out) / 'index.html'}")
@@ -69,27 +76,32 @@ def run(args) -> int:
 
     # --inputs selects among each sweep's own input kinds (Table 1 keeps its mesh input and frame).
     wanted, args.inputs = args.inputs, None
-    sweeps = []
+    sweeps, named = [], set()
     for path in args.sweep:
-        sweep = build_sweep(args, path)  # every file is validated before anything runs
+        sweep = build_sweep(args, path, strict=False)  # every file is validated before anything runs
+        named.update(sweep.methods)
         if wanted:
             kinds = tuple(k for k in sweep.inputs if k in wanted)
             if not kinds:
                 continue
             sweep = dataclasses.replace(sweep, inputs=kinds)
         sweeps.append(sweep)
+    for key in parse_sets(args.sets):
+        if "." in key and key.split(".", 1)[0] not in named:
+            raise ValueError(f"--set {key}=...: {key.split('.', 1)[0]!r} is not a method of any sweep "
+                             f"(methods: {', '.join(sorted(named))})")
     sweeps = [s for s in (_runnable(s, bool(args.methods)) for s in sweeps) if s is not None]
     if not sweeps:
         raise ValueError("no sweep has runs: check --methods / --inputs and the registered methods")
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed)
+    check_work(args.work, runner.db_path)
     keys, kinds = [], []
     for sweep in sweeps:
         summary = run_sweep(sweep, runner)
         keys += summary.keys
         kinds += [k for k in sweep.inputs if k not in kinds]
-        print(f"sweep {sweep.name}: {summary.total} runs: {summary.done} done now, {summary.failed} failed now, "
-              f"{summary.skipped} already stored")
+        print(f"sweep {sweep.name}: {summary.line()}")
     print(summary_text(runner.db_path, kinds, keys), end="")
     print(f"store {runner.db_path}")
     title = "DMesh harness: " + ", ".join(s.name for s in sweeps)
