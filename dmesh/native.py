@@ -148,6 +148,12 @@ def delta_diagram(points, weights, pd, num_threads: int = 0):
         i32(pd.point_neighbors.offsets), i32(pd.point_neighbors.indices), int(num_threads))
 
 
+def orthocentre_backward(diagram, grad, num_threads: int = 0):
+    """((N, 3), (N,)) float64 gradients of sum(grad * diagram.orthocentres) for grad (T, 3) (degenerate,
+    clamped tets pass none); reduced per point in a fixed order (bit-for-bit the same for any thread count)."""
+    return _native.orthocentre_backward(diagram, np.ascontiguousarray(grad, dtype=GEOMETRY_DTYPE), int(num_threads))
+
+
 def _mask(active) -> np.ndarray:
     return np.zeros(0, np.uint8) if active is None else np.ascontiguousarray(active, dtype=np.uint8)
 

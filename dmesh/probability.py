@@ -142,6 +142,33 @@ class _CandidateDeltas(torch.autograd.Function):
         return (torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), *([None] * 6))
 
 
+class _Orthocentres(torch.autograd.Function):
+    """(T, 3) float64 orthocentres of a `delta_diagram` handle's tets: the forward returns those the handle
+    computed (no recomputation), the backward applies the native orthocentre adjoint."""
+
+    @staticmethod
+    def forward(ctx, points, weights, diagram):
+        ctx.saved = (diagram, points.dtype, weights.dtype)
+        return torch.from_numpy(diagram.orthocentres)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad):
+        diagram, p_dtype, w_dtype = ctx.saved
+        gp, gw = native.orthocentre_backward(diagram, grad.numpy())
+        return torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), None
+
+
+def orthocentres(points: torch.Tensor, weights: torch.Tensor, diagram) -> torch.Tensor:
+    """(T, 3) float64 orthocentres of the tets of `diagram` (from `delta_diagram(points, weights, pd)`, whose
+    points and weights these must be), differentiable with respect to points and weights; equal to
+    `dmesh.geometry.orthocentres(points, weights, pd.tets)` except that degenerate tets (|det| < 1e-18)
+    pass no gradient."""
+    if diagram.num_points != len(points):
+        raise ValueError(f"the diagram has {diagram.num_points} points, got {len(points)}")
+    return _Orthocentres.apply(points, weights, diagram)
+
+
 def delta_diagram(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram):
     """The native handle the fused kernels share in one pass: `pd`'s combinatorics with the geometry
     recomputed from (points, weights)."""
@@ -284,6 +311,8 @@ class FaceProbabilities:
         delta: (F + C,) float signed distance Delta (>= 0 in the WDT, <= 0 outside).
         prob_wdt: (F + C,) Lambda_wdt; prob_real: (F + C,) Lambda_real; prob: (F + C,) Lambda.
         power_diagram: the `PowerDiagram` of this pass.
+        diagram: the native `delta_diagram` handle of this pass (impl "native"), else None; with it,
+            `orthocentres(points, weights, diagram)` gives the pass's orthocentres without recomputing them.
     """
 
     faces: torch.Tensor
@@ -293,6 +322,7 @@ class FaceProbabilities:
     prob_real: torch.Tensor
     prob: torch.Tensor
     power_diagram: PowerDiagram
+    diagram: object = None
 
 
 class ProbabilityState:
@@ -457,7 +487,7 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
     if cfg.impl == "native" and not cfg.power_cell_factor:
         delta, p_wdt, p_real, prob = _Lambda.apply(per_vertex, per_vertex_non, reals, faces_np, cfg.alpha,
                                                    cfg.alpha_real, dtype)
-        out = FaceProbabilities(faces, in_wdt, delta, p_wdt, p_real, prob, pd)
+        out = FaceProbabilities(faces, in_wdt, delta, p_wdt, p_real, prob, pd, diagram)
     else:
         delta = torch.cat([per_vertex.mean(1), -per_vertex_non.mean(1)])
         p_wdt = lambda_wdt(delta, cfg.alpha)
@@ -468,7 +498,7 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
         else:
             p_real = dmin(reals[faces].double(), cfg.alpha_real)
         out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
-                                (p_wdt * p_real).to(dtype), pd)
+                                (p_wdt * p_real).to(dtype), pd, diagram)
     if timings is not None:
         timings["probabilities"] = timings.get("probabilities", 0.0) + time.perf_counter() - t_prob
         timings["probabilities_cpu"] = timings.get("probabilities_cpu", 0.0) + time.process_time() - c_prob
@@ -525,4 +555,4 @@ def delta(points, weights, faces, impl: str = "native") -> torch.Tensor:
 
 
 __all__ = ["ProbabilityConfig", "ProbabilityState", "FaceProbabilities", "face_probabilities", "delta",
-           "dmin", "lambda_wdt", "dual_edges", "existing_deltas", "nonexisting_deltas"]
+           "dmin", "lambda_wdt", "dual_edges", "existing_deltas", "nonexisting_deltas", "orthocentres"]

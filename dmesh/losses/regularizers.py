@@ -17,17 +17,24 @@ import math
 import numpy as np
 import torch
 
-from dmesh import geometry
+from dmesh import geometry, probability
 from dmesh.wdt import PowerDiagram
 
 
 def weight_regularizer(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram,
-                       max_length: float = 1.0) -> torch.Tensor:
-    """Sum of the finite power-diagram edge lengths, each clamped at `max_length` (float64, 0-dim)."""
+                       max_length: float = 1.0, diagram=None) -> torch.Tensor:
+    """Sum of the finite power-diagram edge lengths, each clamped at `max_length` (float64, 0-dim).
+
+    diagram: optional native handle of `pd` for these points and weights (`FaceProbabilities.diagram`):
+    the orthocentres it already holds are used, with the native adjoint, instead of recomputing them in
+    torch (same values and gradients; several times faster at ~10^5 tets)."""
     inner = np.flatnonzero(~pd.is_hull)
     if len(inner) == 0:
         return torch.zeros((), dtype=torch.float64)
-    cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets).long())
+    if diagram is not None:
+        cc = probability.orthocentres(points, weights, diagram)
+    else:
+        cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets).long())
     ft = torch.from_numpy(pd.face_tets[inner]).long()
     length = (cc[ft[:, 0]] - cc[ft[:, 1]]).norm(dim=1)
     return length.clamp_max(max_length).sum()
@@ -102,7 +109,8 @@ def add_phase1_regularizers(loss, dm, fp, pd, cfg, step: int):
         with those fields); step: the phase-1 step (for the ramp).
     """
     if cfg.lambda_weight > 0:
-        loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd)
+        diagram = fp.diagram if pd is fp.power_diagram else None  # the pass's native orthocentres
+        loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd, diagram=diagram)
     coef = ramp(step, cfg.lambda_real_start, cfg.lambda_real_end, cfg.real_ramp_steps)
     if coef > 0:
         loss = loss + coef * real_regularizer(dm.reals, fp.faces, fp.prob_wdt)

@@ -163,6 +163,25 @@ void bind_delta(nb::module_& m) {
         "points; the Delta kernels take the handle.");
 
   m.def(
+      "orthocentre_backward",
+      [](const DeltaDiagram& d, In<double> grad, int num_threads) {
+        const char* fn = "orthocentre_backward";
+        require_threads(fn, num_threads);
+        require(fn, "grad", grad, d.view.T, 3);
+        PointGradient g;
+        {
+          nb::gil_scoped_release release;
+          g = orthocentre_adjoint(d.view, grad.data(), num_threads);
+        }
+        const size_t N = size_t(d.view.N);
+        return nb::make_tuple(to_numpy(std::move(g.points), {N, 3}), to_numpy(std::move(g.weights), {N}));
+      },
+      nb::arg("diagram"), nb::arg("grad").noconvert(), nb::arg("num_threads") = 0,
+      "orthocentre_backward(diagram, grad (T,3) f64, num_threads=0)\n"
+      "    -> (grad_points (N,3) f64, grad_weights (N,) f64)\n\n"
+      "Gradient of sum(grad * diagram.orthocentres) (no gradient through clamped, degenerate tets).");
+
+  m.def(
       "existing_delta_forward",
       [](const DeltaDiagram& d, In<index_t> face_ids, In<index_t> cache_offsets, In<index_t> cache_indices,
          double ray_length, In<index_t> hint, int num_threads) {

@@ -198,6 +198,19 @@ void orthocentre_backward(const DiagramView& dv, index_t t, V gc, Sink&& sink) {
   sink(tet[0], gp0, gw0);
 }
 
+// Writes (or clears) slots 4t .. 4t + 3 of `slots` with gc . dc(t)/d(p, w) for the tet's 4 vertices, in
+// the tet's vertex order (no gradient for gc = 0 or a clamped tet).
+inline void store_orthocentre_adjoint(const DiagramView& dv, index_t t, V gc, SlotArray& slots) {
+  const std::size_t first = 4 * static_cast<std::size_t>(t);
+  slots.clear(first, 4);
+  if (is_zero(gc)) return;
+  const index_t* tv = dv.tets + first;
+  orthocentre_backward(dv, t, gc, [&](index_t id, V gp, real_t gw) {
+    const int m = id == tv[0] ? 0 : (id == tv[1] ? 1 : (id == tv[2] ? 2 : 3));
+    slots.set(first + m, id, gp, gw);
+  });
+}
+
 // The outward ray direction of hull face f from the points: the unit normal (p_b - p_a) x (p_c - p_a) / |.|
 // times the sign (returned in *sign) that makes it agree with hull_dirs[f].
 inline V hull_direction(const DiagramView& dv, index_t f, real_t* sign) {
@@ -392,6 +405,16 @@ std::vector<real_t> delta_orthocentres(const DiagramView& dv, int num_threads) {
   return out;
 }
 
+PointGradient orthocentre_adjoint(const DiagramView& dv, const real_t* grad, int num_threads) {
+  SlotArray tet(4 * static_cast<std::size_t>(dv.T));
+  const int nt = threads_for(num_threads, std::size_t(dv.T), kParallelMin);
+#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
+  for (index_t t = 0; t < dv.T; ++t) {
+    store_orthocentre_adjoint(dv, t, load(grad + 3 * static_cast<std::size_t>(t)), tet);
+  }
+  return reduce_slots(dv.N, {&tet}, num_threads);
+}
+
 ExistingDeltaResult existing_delta_forward(const DiagramView& dv, const index_t* face_ids, index_t K,
                                            const index_t* cache_offsets, const index_t* cache_indices,
                                            real_t ray_length, const index_t* hint, int num_threads) {
@@ -560,19 +583,13 @@ PointGradient existing_delta_backward(const DiagramView& dv, const index_t* face
     // start) and writes its orthocentre's adjoint once.
 #pragma omp for schedule(static)
     for (index_t t = 0; t < dv.T; ++t) {
-      tet.clear(4 * static_cast<std::size_t>(t), 4);
       V gc = {0.0, 0.0, 0.0};
       for (int m = 0; m < 4; ++m) {
         const index_t f = dv.tet_faces[4 * static_cast<std::size_t>(t) + m];
         const real_t share = dv.face_tets[2 * static_cast<std::size_t>(f) + 1] == kNone ? 1.0 : 0.5;
         for (index_t r = first[f]; r != kNone; r = next[r]) gc = gc + gsample[r] * share;
       }
-      if (is_zero(gc)) continue;
-      const index_t* tv = dv.tets + 4 * static_cast<std::size_t>(t);
-      orthocentre_backward(dv, t, gc, [&](index_t id, V gp, real_t gw) {
-        const int m = id == tv[0] ? 0 : (id == tv[1] ? 1 : (id == tv[2] ? 2 : 3));
-        tet.set(4 * static_cast<std::size_t>(t) + m, id, gp, gw);
-      });
+      store_orthocentre_adjoint(dv, t, gc, tet);
     }
   }
   // 3. Hull rows: the ray direction's dependence on the face's vertices (few rows, in row order).

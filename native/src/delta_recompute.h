@@ -80,6 +80,10 @@ struct PointGradient {
   std::vector<real_t> weights;  // (N,)
 };
 
+// Gradient of sum_t grad[t] . c(t) (grad (T, 3), c the orthocentres above) with respect to points and
+// weights: the orthocentre adjoint of existing_delta_backward, reduced per point in the same fixed order.
+PointGradient orthocentre_adjoint(const DiagramView& d, const real_t* grad, int num_threads = 0);
+
 struct ExistingDeltaResult {
   std::vector<index_t> neighbour;  // (K, 3) the chosen neighbour j per vertex, or kNone
   std::vector<real_t> dist;        // (K, 3) delta_i (ray_length where kNone)
