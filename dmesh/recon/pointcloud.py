@@ -146,7 +146,7 @@ class PointCloudConfig:
         are 3-4x faster, `reports/bench_step.md`), and their first steps are noise: Adam moves every
         coordinate by about lr, which at this point density scrambles the nearly degenerate tets on the
         surface. So within two minutes the gradient steps could not improve on the initialisation, and the
-        preset spends its time on density instead. Phase 1 needs the `paper` schedule (877 s on the torus,
+        preset spends its time on density instead. Phase 1 needs the `paper` schedule (881 s on the torus,
         CD p2s 0.95e-3 against this preset's 0.2e-3; `reports/bench_step.md`)."""
         base = dict(num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=50_000,
                     num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16, lambda_weight=0.0,
