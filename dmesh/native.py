@@ -290,16 +290,20 @@ def _as_array(a) -> np.ndarray:
     return a.detach().cpu().numpy() if hasattr(a, "detach") else np.asarray(a)
 
 
+def _rows3(fn: str, name: str, letter: str, a, dtype) -> np.ndarray:
+    """(R, 3) C-contiguous array of `dtype`; ValueError naming `fn` and the argument otherwise."""
+    out = np.ascontiguousarray(_as_array(a), dtype=dtype)
+    if out.ndim != 2 or out.shape[1] != 3:
+        raise ValueError(f"{fn}: {name} must have shape ({letter}, 3), got {out.shape}")
+    return out
+
+
 def _chamfer_inputs(fn: str, target, points, prob, face, knn, dtype) -> tuple:
     dtype = np.dtype(dtype)
     if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"{fn}: dtype must be float32 or float64, got {dtype}")
-    t = np.ascontiguousarray(_as_array(target), dtype=dtype)
-    p = np.ascontiguousarray(_as_array(points), dtype=dtype)
-    if t.ndim != 2 or t.shape[1] != 3:
-        raise ValueError(f"{fn}: target must have shape (G, 3), got {t.shape}")
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"{fn}: points must have shape (S, 3), got {p.shape}")
+    t = _rows3(fn, "target", "G", target, dtype)
+    p = _rows3(fn, "points", "S", points, dtype)
     pr = np.ascontiguousarray(_as_array(prob), dtype=dtype)
     if pr.shape != (len(p),):
         raise ValueError(f"{fn}: prob must have shape ({len(p)},) like points, got {pr.shape}")
@@ -351,12 +355,8 @@ def knn_search(data, queries, k: int, num_threads: int = 0, dtype=np.float64) ->
     """(Q, k) int32 ids of the k nearest data points of every query, nearest first, exact, ties to the smaller
     id (independent of num_threads). data: (D, 3), queries: (Q, 3) floats, converted to `dtype`; k <= D."""
     fn = "knn_search"
-    d = np.ascontiguousarray(_as_array(data), dtype=dtype)
-    q = np.ascontiguousarray(_as_array(queries), dtype=dtype)
-    if d.ndim != 2 or d.shape[1] != 3:
-        raise ValueError(f"{fn}: data must have shape (D, 3), got {d.shape}")
-    if q.ndim != 2 or q.shape[1] != 3:
-        raise ValueError(f"{fn}: queries must have shape (Q, 3), got {q.shape}")
+    d = _rows3(fn, "data", "D", data, dtype)
+    q = _rows3(fn, "queries", "Q", queries, dtype)
     if not 0 <= int(k) <= len(d):
         raise ValueError(f"{fn}: k must be in [0, {len(d)}] (the number of data points), got {k}")
     return _native.knn_search(d, q, int(k), int(num_threads))

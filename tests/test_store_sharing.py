@@ -271,7 +271,7 @@ def _calls(counter: Path) -> list[tuple[int, int]]:
 def test_sweep_waits_for_a_run_held_elsewhere_and_takes_over_a_silent_one(fake, tmp_path):
     """In one process: seed 1 is held by a live sweep on another host, which stores it 1.5 s later; seed 2
     by a sweep whose heartbeat stopped long ago. The sweep computes seeds 0 and 2 and waits for seed 1."""
-    from eval.runner import RunnerConfig, run_sweep
+    from eval.runner import RunnerConfig
 
     work, counter = tmp_path / "work", tmp_path / "calls.txt"
     sweep = _sweep((0, 1, 2), counter)
@@ -413,7 +413,7 @@ def test_ray_executor_path_claims_runs_too(fake, tmp_path, monkeypatch):
     """`_run_ray` with a stand-in for Ray (Ray may not be installed): runs go through the same claims."""
     import types
 
-    from eval.runner import RunnerConfig, run_sweep
+    from eval.runner import RunnerConfig
 
     class Ref:
         def __init__(self, value):

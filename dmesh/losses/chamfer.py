@@ -23,20 +23,10 @@ Implementations (`ExpectedChamfer.impl`):
   backward whose gradients are byte-identical on any thread count.
 - "reference": the naive torch path of `dmesh.reference.chamfer` with SciPy's cKDTree, as before the kernel.
 The normal term (lambda_normal > 0) re-sorts rows by the normal-augmented distance and stays on the torch
-path in both (the native kNN still finds the candidates in "native"). The ours -> target term is the same
-small torch computation in both, on a cKDTree of the fixed target built once: at S = G = 100K its query
-takes about 0.04 s and its torch forward and backward a few ms, so it stays in Python (a native k = 1
-search, which rebuilds both trees per call, measured 0.07 s). The target points are kept in a Z-order
-(the loss is a mean over them), which makes the kernel about 1.5x faster through cache locality.
-
-Measured at G = S = 100K, K = 95 (torus, 200K face ids, probabilities in (0.01, 0.99)), 2 threads on a
-shared 2-core machine, best run / medians under load: reference forward 1.35 / 1.9-3.9 s, backward
-0.77 / 0.8-1.9 s; native forward 0.24 / 0.5-0.57 s (kNN search 0.18-0.35 s, cKDTree's 1.0-1.8 s; kernel
-0.02-0.05 s), backward 0.074 / 0.24-0.27 s (kernel 0.07-0.18 s). Native and reference agree to 4e-16
-relative in the loss and both gradients. A float32 kernel (`expected_distance(dtype=torch.float32)`)
-was no faster (row sums are in float64 anyway) and is 7e-4 off in the position gradients (2e-9 in the
-loss, 3e-6 in the probability gradients, relative to the largest value), so `ExpectedChamfer` runs the
-float64 one.
+path in both (the native kNN still finds the candidates in "native"). The ours -> target term is a small
+torch computation on a cKDTree of the fixed target, built once. The target is kept in a Z-order (the loss
+is a mean over it) for cache locality in the kernel. `ExpectedChamfer` runs the float64 kernel: float32
+was no faster and less accurate. Timings: `python -m eval.bench step` (reports/bench_step.md).
 """
 from __future__ import annotations
 

@@ -723,7 +723,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
 
     Every random choice (views per step, surface samples, seeds) comes from `config.seed`. Runs repeat bit
     for bit on any thread count: the triangulation's order is canonical and the native kernels (renderers,
-    Delta) reduce in a fixed order (measured: tiny preset on a 16-view torus, 1 and 2 threads, one mesh).
+    Delta) reduce in a fixed order.
     """
     from dmesh.render import Camera, soft_render_views, tet_render_views
     from dmesh.representation import DMesh

@@ -142,12 +142,10 @@ class PointCloudConfig:
         - the same with 10 phase-2 steps: 0.197 / 32 (this preset);
         - with 3 phase-1 steps at lr 1e-5: 0.218 / 76; 20K seeds, 6 phase-1 steps at lr 2e-5: 0.461 / 86
           against 0.403 with none; at the paper's lr 3e-4, 4 phase-1 steps take 0.283 to 1.18.
-        Phase-1 steps cost 10-20 s each at 90K points when this was chosen (torch kernels; the native ones
-        are 3-4x faster, `reports/bench_step.md`), and their first steps are noise: Adam moves every
-        coordinate by about lr, which at this point density scrambles the nearly degenerate tets on the
-        surface. So within two minutes the gradient steps could not improve on the initialisation, and the
-        preset spends its time on density instead. Phase 1 needs the `paper` schedule (881 s on the torus,
-        CD p2s 0.95e-3 against this preset's 0.2e-3; `reports/bench_step.md`)."""
+        Phase-1 steps were too slow for this budget when it was chosen (torch kernels), and their first
+        steps are noise: Adam moves every coordinate by about lr, which at this point density scrambles the
+        nearly degenerate tets on the surface. So the preset spends its time on density instead; phase 1
+        needs the `paper` schedule (its cost and curve: `python -m eval.bench step`)."""
         base = dict(num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=50_000,
                     num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16, lambda_weight=0.0,
                     real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
