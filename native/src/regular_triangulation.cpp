@@ -86,6 +86,8 @@ void canonicalise(RegularTriangulationResult& out) {
   // Even permutations taking position m to the front: identity or a double transposition.
   static const int kFront[4][4] = {{0, 1, 2, 3}, {1, 0, 3, 2}, {2, 3, 0, 1}, {3, 2, 1, 0}};
   std::vector<index_t> tets(4 * T), nbrs(4 * T);
+  // The loops below write disjoint entries only, so their result does not depend on the thread count.
+#pragma omp parallel for schedule(static)
   for (std::size_t t = 0; t < T; ++t) {
     const index_t* v = &out.tets[4 * t];
     const index_t* nb = &out.neighbors[4 * t];
@@ -120,13 +122,16 @@ void canonicalise(RegularTriangulationResult& out) {
       rows[fill[v[0]]++] = {{v[0], v[1], v[2], v[3]}, static_cast<index_t>(t)};
     }
   }
+#pragma omp parallel for schedule(dynamic, 4096)
   for (index_t i = 0; i < n; ++i) {
     std::sort(rows.begin() + start[i], rows.begin() + start[i + 1], [](const Row& a, const Row& b) {
       return std::lexicographical_compare(a.v + 1, a.v + 4, b.v + 1, b.v + 4);
     });
   }
   std::vector<index_t> new_id(T);
+#pragma omp parallel for schedule(static)
   for (std::size_t i = 0; i < T; ++i) new_id[rows[i].old] = static_cast<index_t>(i);
+#pragma omp parallel for schedule(static)
   for (std::size_t i = 0; i < T; ++i) {
     const index_t t = rows[i].old;
     for (int k = 0; k < 4; ++k) {
