@@ -15,6 +15,9 @@ from baselines.base import Inputs, Method, Stopwatch, check_points
 
 log = logging.getLogger(__name__)
 
+#: Steps between the points of a run's curve (`info["curve"]`: loss and, from the harness monitor, CD p2s).
+CURVE_EVERY = 50
+
 
 class DMeshPointCloud(Method):
     name = "dmesh"
@@ -56,7 +59,39 @@ class DMeshPointCloud(Method):
         pts, nrm = check_points(inputs, need_normals=cfg.lambda_normal > 0)
         if inputs.seed != cfg.seed:
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
-        return self._output(reconstruct(pts, nrm, cfg), cfg, sw)
+        curve = []
+        probe = self._probe(inputs.monitor, cfg, pts, curve, sw) if cfg.steps_phase1 + cfg.steps_phase2 else None
+        mesh, info = self._output(reconstruct(pts, nrm, cfg, probe=probe), cfg, sw)
+        if curve:
+            info["curve"] = curve
+        return mesh, info
+
+    @staticmethod
+    def _probe(monitor, cfg, pts, curve: list, sw: Stopwatch):
+        """The `reconstruct` probe that records the curve: loss, and the harness monitor's figures (CD p2s
+        against the GT) of the mesh extracted every CURVE_EVERY steps; its seconds go to the "monitor" stage."""
+        import time
+
+        import numpy as np
+
+        from dmesh.recon.pointcloud import extract
+        from dmesh.representation import DMesh
+
+        center = pts.mean(0)  # reconstruct's normalisation (its docstring, step 1)
+        radius = float(np.linalg.norm(pts - center, axis=1).max())
+
+        def probe(params, record):
+            t0 = time.perf_counter()
+            point = {"phase": int(record["phase"]), "step": int(record["step"]), "loss": float(record["loss"])}
+            if monitor is not None:
+                dm = DMesh(params["points"], params["weights"], params["reals"])
+                mesh = extract(dm, cfg.threshold, None, cfg.extraction)
+                mesh.vertices = np.asarray(mesh.vertices) * radius + center
+                point.update(monitor(mesh))
+            curve.append(point)
+            sw.timings["monitor"] = sw.timings.get("monitor", 0.0) + time.perf_counter() - t0
+
+        return (CURVE_EVERY, probe)
 
     @staticmethod
     def _output(res, cfg, sw: Stopwatch):

@@ -240,6 +240,22 @@ def one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {msg}"[:500]
 
 
+#: Samples per side of the monitor's CD p2s (curves of intermediate meshes; the final metrics use the sweep's).
+MONITOR_SAMPLES = 20_000
+
+
+def gt_monitor(gt):
+    """`Inputs.monitor` of a run: CD p2s of an intermediate mesh against the GT (20K samples per side)."""
+    from eval.metrics import chamfer_l1_p2s
+
+    def monitor(mesh) -> dict:
+        if mesh is None or len(mesh.faces) == 0:
+            return {"cd_p2s": None, "faces": 0}
+        return {"cd_p2s": float(chamfer_l1_p2s(mesh, gt, n=MONITOR_SAMPLES)), "faces": int(len(mesh.faces))}
+
+    return monitor
+
+
 def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=None) -> dict:
     """Runs one run in this process and returns its outcome (never raises for a failing method).
 
@@ -254,6 +270,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         method = method if method is not None else get_method(spec.method)
         config, _ = build_config(method, spec.overrides)
         inputs = load_inputs(spec, Path(gt_path), work)
+        inputs.monitor = gt_monitor(load_gt(gt_path))
         result = method.reconstruct(inputs, config)
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
