@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export OMP_NUM_THREADS ?= 2
 
-.PHONY: setup test test-slow demo bench reproduce-tables clean
+.PHONY: setup test test-slow demo bench reproduce-tables robustness clean
 
 setup:
 	@bash tools/setup.sh
@@ -21,6 +21,9 @@ bench: setup
 
 reproduce-tables: setup
 	$(PY) -m eval.cli reproduce-tables -o reports
+
+robustness: setup
+	$(PY) -m eval.cli robustness --jobs 2 -o reports
 
 clean:
 	rm -rf build out .pytest_cache

@@ -4,8 +4,8 @@ Shape letters: N input points, F output faces.
 
 The config is `dmesh.recon.pointcloud.PointCloudConfig` (a frozen dataclass): the default is the `fast`
 preset. Pass an instance (e.g. `PointCloudConfig.paper()`), or a mapping of field overrides, optionally with
-`"preset": "paper" | "fast" | "tiny"` naming the base they apply to. Normals are used only when
-`lambda_normal` > 0.
+`"preset": "paper" | "fast" | "noisy" | "tiny"` naming the base they apply to. Normals go into the loss when
+`lambda_normal` > 0, and always vote on the output's inside / outside and the side its open sheets face.
 """
 from __future__ import annotations
 

@@ -35,3 +35,10 @@ METHODS[DMeshFromMesh.name] = DMeshFromMesh()
 from baselines.dmesh_multiview import DMeshMultiView  # noqa: E402  (DMesh on multi-view images, Exp. 3)
 
 METHODS[DMeshMultiView.name] = DMeshMultiView()
+
+from baselines.flexicubes import FlexiCubes  # noqa: E402  (the paper's Table 2 baselines, re-implemented)
+from baselines.nie import NIE  # noqa: E402
+from baselines.voromesh import VoroMesh  # noqa: E402
+
+for _paper_baseline in (VoroMesh(), FlexiCubes(), NIE()):
+    METHODS[_paper_baseline.name] = _paper_baseline

@@ -3,7 +3,7 @@
 Submodules (imported on first use, so `import datasets` stays cheap):
 
 - `datasets.synthetic`: seeded generators by class (closed / open / mixed), `SHAPES`, `generate`;
-- `datasets.meshes`: `load_mesh`, `unique_faces`, `classify`;
+- `datasets.meshes`: `load_mesh`, `unique_faces`, `classify`, `orient_outward`;
 - `datasets.normalize`: `Transform`, `normalize` (vertex mean, max vertex norm);
 - `datasets.sampling`: `sample_points` (area-uniform samples with face normals);
 - `datasets.capture`: `capture`, `MultiView` (diffuse + depth + mask images with their cameras).

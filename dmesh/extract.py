@@ -18,10 +18,26 @@ Modes, from upstream's to ours:
   x1e-3, first mesh of `seeds_and_voronoi(..., vertices="poles")`): "all" 0.283 with 42634 non-manifold
   edges; "no_interior" 0.251; "sheet" 0.201 with no non-manifold or boundary edge (the smaller sheet: 0.299).
   Clusters are small there (median 2 tets, largest 24), so one normal per cluster is enough.
+
+The output surface (`surface`, `extract(..., orient=True)`): the faces alone carry no orientation and, at
+a hole or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets
+are labelled inside or outside by walks to the hull, and the mesh faces between an inside and an outside
+tet form the closed part, wound outward; its small holes are filled over their own vertices and pinches
+are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
+sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
+do not share an edge with the closed part, wound consistently and facing the input normals when given;
+where sheets meet at an edge or a vertex, each gets its own copy of the vertices (nothing moves, so the
+Chamfer distance does not change). Where the input samples a closed surface the result is watertight and
+2-manifold; the figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
 """
 from __future__ import annotations
 
+import logging
+from dataclasses import dataclass, field
+
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 MODES = ("all", "no_interior", "sheet")
 
@@ -97,4 +113,188 @@ def _cluster_normals(points: np.ndarray, tets: np.ndarray, real_tets: np.ndarray
     return vectors[:, :, 0]
 
 
-__all__ = ["MODES", "mesh_faces"]
+@dataclass(frozen=True)
+class SurfaceConfig:
+    """Settings of `surface` (counts and fractions; no lengths)."""
+
+    directions: int = 9        # walks per tet in the inside/outside vote (dmesh.solid.walk_votes); odd: no ties
+    max_open: float = 0.25     # a region of inside tets whose boundary is more than this fraction non-mesh
+                               # faces (by area) is an open part, not a solid (dmesh.solid.drop_open_regions)
+    min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
+    max_hole: int = 64         # holes of the closed part with at most this many edges are filled
+    repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
+    clean: bool = True         # fill holes, drop fins, split where sheets meet; False: orient the faces only
+    neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
+    seed: int = 0              # rotation of the walk directions
+    workers: int = 1           # threads of the k-d tree queries (input normals)
+
+    def __post_init__(self):
+        if int(self.directions) < 1:
+            raise ValueError(f"SurfaceConfig.directions must be >= 1, got {self.directions}")
+        if not 0.0 <= self.max_open <= 1.0:
+            raise ValueError(f"SurfaceConfig.max_open must be in [0, 1], got {self.max_open}")
+        if not self.min_thickness >= 0.0:
+            raise ValueError(f"SurfaceConfig.min_thickness must be >= 0, got {self.min_thickness}")
+        if int(self.neighbours) < 1:
+            raise ValueError(f"SurfaceConfig.neighbours must be >= 1, got {self.neighbours}")
+        for name in ("max_hole", "repair_rounds"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"SurfaceConfig.{name} must be >= 0, got {getattr(self, name)}")
+
+
+@dataclass
+class Surface:
+    """Output of `surface`.
+
+    Attributes:
+        faces: (K, 3) int64 oriented faces into `vertices`; the first `closed` rows are the closed part
+            (outward), the rest the sheets.
+        vertices: (V,) int64 the point of `pd.points` under each vertex (a point where sheets meet has one
+            vertex per sheet: `dmesh.repair.split_fans`).
+        closed: number of closed-part rows.
+        info: counts: inside_tets, regions_dropped, tets_flipped, closed_faces, holes_filled, hole_faces,
+            holes_left, fins_dropped, split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
+    """
+
+    faces: np.ndarray
+    vertices: np.ndarray
+    closed: int
+    info: dict = field(default_factory=dict)
+
+
+def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = None) -> Surface:
+    """The oriented surface of the mesh faces `walls` of the WDT `pd` (module docstring).
+
+    Args:
+        pd: `dmesh.wdt.PowerDiagram`.
+        walls: (F,) bool over `pd.faces`, the extracted mesh faces (`mesh_faces`).
+        normals: None, or (points (G, 3), normals (G, 3)) float64 oriented input samples in the frame of
+            `pd`: they switch the vote from parity to winding and turn each sheet to face them.
+        config: `SurfaceConfig` (None: defaults).
+    """
+    from dmesh import repair, solid
+
+    cfg = config or SurfaceConfig()
+    walls = np.asarray(walls, dtype=bool)
+    points = pd.points
+    if not walls.any():
+        return Surface(np.zeros((0, 3), np.int64), np.arange(len(points)), 0, {"closed_faces": 0, "sheet_faces": 0})
+    if normals is not None:
+        normals = (np.asarray(normals[0], dtype=np.float64), np.asarray(normals[1], dtype=np.float64))
+    sign = None if normals is None else solid.wall_signs(pd, walls, *normals, workers=cfg.workers)
+    votes = solid.walk_votes(pd, walls, solid.directions(cfg.directions, cfg.seed), sign)
+    inside, dropped = solid.drop_open_regions(pd, walls, votes > 0.5, cfg.max_open, cfg.min_thickness)
+    inside, flipped = solid.repair_pinches(pd, inside, cfg.repair_rounds)
+    between = solid.boundary_mask(pd, inside)
+    closed = solid.oriented_boundary(pd, inside, np.flatnonzero(walls & between))
+    info = {"vote": "parity" if sign is None else "winding", "inside_tets": int(inside.sum()),
+            "regions_dropped": dropped, "tets_flipped": flipped, "closed_faces": int(len(closed))}
+    sheet = pd.faces[walls & ~between].astype(np.int64)
+    if cfg.clean:
+        fill, filled, left = repair.fill_holes(points, closed, cfg.max_hole) if len(closed) else (closed, 0, 0)
+        closed = np.concatenate([closed, fill])
+        fins = repair.faces_on_edges(sheet, closed)
+        sheet = sheet[~fins]
+        info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()))
+    sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers)
+    faces = np.concatenate([closed, sheet])
+    vertices = np.arange(len(points))
+    if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices
+        faces, vertices = repair.split_fans(faces, len(points))
+        keep = repair.drop_crowding(points[vertices], faces)
+        faces = faces[keep]
+        closed_count = int(keep[:len(closed)].sum())
+        info.update(split_vertices=int(len(vertices) - len(points)), folds_dropped=int((~keep).sum()))
+    else:
+        closed_count = len(closed)
+    info["sheet_faces"] = int(len(faces) - closed_count)
+    log.debug("surface: %s", info)
+    return Surface(faces, vertices, closed_count, info)
+
+
+def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool = False, normals=None,
+            config: SurfaceConfig | None = None):
+    """The mesh of a DMesh as a `trimesh.Trimesh` over the used points (float64, the DMesh's frame).
+
+    Args:
+        dm: `dmesh.representation.DMesh`; threshold: real value above which a point is real.
+        pd: its `PowerDiagram` (None: a fresh one).
+        mode: which real faces (`mesh_faces`).
+        orient: False: those faces as sorted triples; True: the oriented, closed `surface` of them, whose
+            `info` goes to `mesh.metadata["surface"]`.
+        normals, config: as in `surface` (used with `orient`).
+    """
+    pd = pd if pd is not None else dm.power_diagram()
+    walls = mesh_faces(pd, dm.reals.detach().numpy() > threshold, mode)
+    if not orient:
+        return _trimesh(pd.points, pd.faces[walls])
+    result = surface(pd, walls, normals, config)
+    mesh = _trimesh(pd.points[result.vertices], result.faces)
+    mesh.metadata["surface"] = result.info
+    return mesh
+
+
+def surface_of_mesh(mesh, pd, normals=None, config: SurfaceConfig | None = None):
+    """`surface` of a mesh whose faces are faces of `pd` and whose vertices are copies of some of
+    `pd.points` (e.g. a filtered extraction); returns a new `trimesh.Trimesh` over the used points of `pd`
+    (info in `metadata["surface"]`). Raises ValueError when a vertex or face is not in `pd`."""
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    walls = np.zeros(len(pd.faces), bool)
+    if len(faces):
+        distance, point = cKDTree(pd.points).query(v)
+        far = distance > 1e-9 * (1.0 + np.abs(pd.points).max())  # copies, up to a round trip through a frame
+        if far.any():
+            raise ValueError(f"surface_of_mesh: {int(far.sum())} mesh vertices are not points of the triangulation")
+        ids = pd.face_ids(point[faces])
+        if (ids < 0).any():
+            raise ValueError(f"surface_of_mesh: {int((ids < 0).sum())} mesh faces are not faces of the "
+                             f"triangulation")
+        walls[ids] = True
+    result = surface(pd, walls, normals, config)
+    out = _trimesh(pd.points[result.vertices], result.faces)
+    out.metadata["surface"] = result.info
+    return out
+
+
+def towards_cameras(points: np.ndarray, eyes: np.ndarray, limit: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
+    """`surface`'s `normals` from multi-view input: (points, unit vectors from each point towards its eye).
+
+    A captured surface faces the camera that saw it, so the direction to that camera has the sign of the
+    surface's outward normal wherever the surface is closed (and of its seen side on an open sheet).
+
+    Args:
+        points: (G, 3) float64 captured surface points (lifted depth pixels); eyes: (G, 3) float64 centre of
+            the camera that saw each; both in the frame of the triangulation.
+        limit: at most this many points are kept, evenly strided (deterministic).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    eyes = np.asarray(eyes, dtype=np.float64)
+    if len(points) > limit:
+        pick = np.linspace(0, len(points) - 1, limit).astype(np.int64)
+        points, eyes = points[pick], eyes[pick]
+    d = eyes - points
+    return points, d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+
+
+def _trimesh(points: np.ndarray, faces: np.ndarray):
+    import trimesh
+
+    mesh = trimesh.Trimesh(np.array(points, dtype=np.float64), np.asarray(faces, dtype=np.int64).reshape(-1, 3),
+                           process=False)
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def orient_faces(mesh) -> None:
+    """Consistent winding per connected component (in place), outward for closed components
+    (`dmesh.repair.orient_faces`; kept here for the extraction's callers)."""
+    from dmesh.repair import orient_faces as _orient
+
+    _orient(mesh)
+
+
+__all__ = ["MODES", "mesh_faces", "SurfaceConfig", "Surface", "surface", "extract", "surface_of_mesh",
+           "towards_cameras", "orient_faces"]

@@ -1,4 +1,5 @@
-"""Reconstruction metrics: Chamfer distances, F-score, normal consistency, RE/FP and mesh statistics.
+"""Reconstruction metrics: Chamfer distances, F-score, normal consistency and orientation, RE/FP, mesh topology
+and statistics.
 
 Shape letters: N surface samples per mesh, V vertices, F faces, E unique edges.
 
@@ -21,7 +22,15 @@ nearest point of the sample set S; dist(x, M): exact distance from x to the tria
 - `f_score` = 2 PR / (P + R) with precision P = fraction of p with d(p, G) < 0.003 and recall R = fraction of g
   with d(g, P) < 0.003, in the NDC frame;
 - `normal_consistency` = (mean_g |n_g . n_NN(g)| + mean_p |n_p . n_NN(p)|) / 2 with face normals of the samples
-  (absolute value: orientation ignored).
+  (absolute value: orientation ignored);
+- `normal_consistency_oriented` = (mean_g n_g . n_pred(c_g) + mean_p n_p . n_gt(c_p)) / 2, signed, with c_x the
+  exact closest point of x on the other mesh (the `cd_p2s` queries); `oriented_fraction` = area-weighted share
+  of predicted faces whose normal has a positive dot product with the normal of the GT face closest to the
+  face's centroid. Both compare against the GT oriented outward (`datasets.meshes.orient_outward`) and are NaN
+  for a GT that cannot be oriented (`gt_orientable` False).
+
+Topology (`topology`): boundary edges and loops, non-manifold edges and vertices, components, watertightness,
+winding consistency, Euler characteristic and genus, for the prediction and (prefixed `gt_`) the GT.
 """
 from __future__ import annotations
 
@@ -190,7 +199,7 @@ def _sample_metrics(pv, pf, gv, gf, n, seed, threshold):
         "normal_consistency": 0.5 * float(np.abs(np.einsum("nc,nc->n", nG, nP[i_gp])).mean()
                                           + np.abs(np.einsum("nc,nc->n", nP, nG[i_pg])).mean()),
     }
-    return out, G, P
+    return out, (G, nG), (P, nP)
 
 
 def cd_l2_ndc(pred, gt, n: int = 100_000, seed: int = 0) -> float:
@@ -272,6 +281,121 @@ def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.unique(e, axis=0, return_counts=True)
 
 
+def _n_components(n: int, a: np.ndarray, b: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of the graph on n nodes with edges (a[i], b[i]): (count, (n,) labels)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    adj = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n))
+    count, labels = connected_components(adj, directed=False)
+    return int(count), labels
+
+
+def topology(vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """Combinatorial figures of a triangle mesh: edges, boundary, manifoldness, winding, Euler characteristic, genus.
+
+    Written here rather than taken from trimesh, which has no per-vertex manifold test, no boundary-loop count
+    and no orientability test for an inconsistently wound mesh. Faces that repeat a vertex index have no
+    topology and are left out; vertices no face uses are not counted.
+
+    Args:
+        vertices: (V, 3) float (only their count matters). faces: (F, 3) int64 indices into vertices.
+
+    Returns:
+        {"edges": E unique undirected edges, "boundary_edges": edges used by one face, "boundary_loops":
+        connected pieces of the boundary-edge graph (the holes of a 2-manifold), "non_manifold_edges": edges
+        used by more than two faces, "non_manifold_vertices": vertices whose faces form more than one fan
+        (faces around a vertex joined through the two-face edges at it; a bow-tie vertex, or the ends of a
+        non-manifold edge), "components": connected components (faces joined through shared vertices),
+        "watertight": F > 0 and every edge is used by exactly two faces, "winding_consistent": every two-face
+        edge is run in opposite directions by its two faces, "inconsistent_winding_edges": two-face edges run
+        the same way by both, "euler_characteristic": V - E + F, "genus": for an orientable 2-manifold (no
+        non-manifold edge or vertex) the sum over components of g with chi = 2 - 2 g - b, i.e.
+        (2 C - chi - boundary_loops) / 2; None for a non-manifold or non-orientable mesh}.
+    """
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    out = {"edges": 0, "boundary_edges": 0, "boundary_loops": 0, "non_manifold_edges": 0,
+           "non_manifold_vertices": 0, "components": 0, "watertight": False, "winding_consistent": True,
+           "inconsistent_winding_edges": 0, "euler_characteristic": 0, "genus": None}
+    if len(f) == 0:
+        return out
+    nv = len(np.asarray(vertices).reshape(-1, 3))
+    sides = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)   # (3F, 2): side 3i+k runs corner k -> k+1 of face i
+    lo, hi = np.minimum(sides[:, 0], sides[:, 1]), np.maximum(sides[:, 0], sides[:, 1])
+    nv = max(nv, int(f.max()) + 1)
+    keys, edge_of, counts = np.unique(lo * nv + hi, return_inverse=True, return_counts=True)  # 1-D: fast
+    edges = np.stack([keys // nv, keys % nv], axis=1)
+    edge_of = edge_of.ravel()
+    forward = np.bincount(edge_of, weights=(sides[:, 0] < sides[:, 1]), minlength=len(edges))
+    two = counts == 2
+    bad_winding = two & (forward != 1)
+    used = np.unique(f)
+    ncomp, _ = _n_components(nv, edges[:, 0], edges[:, 1])
+    ncomp -= nv - len(used)                              # unused vertices are singleton components
+    bnd = edges[counts == 1]
+    _, blab = _n_components(nv, bnd[:, 0], bnd[:, 1])
+    loops = int(len(np.unique(blab[np.unique(bnd)]))) if len(bnd) else 0
+    nm_vertices = _non_manifold_vertices(f, sides, edge_of, two)
+    chi = int(len(used) - len(edges) + len(f))
+    out.update({"edges": int(len(edges)), "boundary_edges": int(len(bnd)), "boundary_loops": loops,
+                "non_manifold_edges": int((counts > 2).sum()), "non_manifold_vertices": nm_vertices,
+                "components": int(ncomp), "watertight": bool(two.all()),
+                "winding_consistent": not bool(bad_winding.any()),
+                "inconsistent_winding_edges": int(bad_winding.sum()), "euler_characteristic": chi})
+    if out["non_manifold_edges"] == 0 and nm_vertices == 0 and _orientable(len(f), edge_of, two, bad_winding):
+        g2 = 2 * ncomp - chi - loops
+        out["genus"] = g2 // 2 if g2 % 2 == 0 else None
+    return out
+
+
+def _two_face_pairs(edge_of: np.ndarray, two: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two sides (s1, s2), each (M,) int64, of every two-face edge, and that edge's id (M,)."""
+    order = np.argsort(edge_of, kind="stable")
+    keep = two[edge_of[order]]
+    s = order[keep].reshape(-1, 2)                       # sides of one two-face edge sit together once sorted
+    return s[:, 0], s[:, 1], edge_of[s[:, 0]]
+
+
+def _non_manifold_vertices(f: np.ndarray, sides: np.ndarray, edge_of: np.ndarray, two: np.ndarray) -> int:
+    """Vertices whose corners (face, vertex) fall into more than one fan; see `topology`.
+
+    Corner 3i+k is vertex f[i, k] in face i; side 3i+k starts at corner 3i+k and ends at corner 3i+(k+1)%3.
+    Across a two-face edge the corners of each of its two vertices are joined; a vertex whose corners then
+    form more than one group is a non-manifold vertex.
+    """
+    s1, s2, _ = _two_face_pairs(edge_of, two)
+    end1, end2 = 3 * (s1 // 3) + (s1 % 3 + 1) % 3, 3 * (s2 // 3) + (s2 % 3 + 1) % 3   # corners where they end
+    ca, cb = [], []
+    for v in (sides[s1, 0], sides[s1, 1]):              # each vertex of the edge: its corner in both faces
+        ca.append(np.where(sides[s1, 0] == v, s1, end1))
+        cb.append(np.where(sides[s2, 0] == v, s2, end2))
+    ca, cb = np.concatenate(ca), np.concatenate(cb)
+    _, labels = _n_components(3 * len(f), ca, cb)
+    vert = f.ravel()                                     # vertex of corner 3i+k
+    fans = np.unique(vert * np.int64(3 * len(f)) + labels)  # one entry per (vertex, fan)
+    per_vertex = np.bincount(fans // (3 * len(f)))
+    return int((per_vertex > 1).sum())
+
+
+def _orientable(n_faces: int, edge_of: np.ndarray, two: np.ndarray, bad_winding: np.ndarray) -> bool:
+    """Whether some choice of reversed faces makes every two-face edge consistently wound.
+
+    Two-colouring of the faces' double cover: node (i, 0) is face i as wound, (i, 1) reversed; a consistent
+    edge joins same-state nodes, an inconsistent one opposite states. Orientable iff no face meets itself
+    reversed (a Moebius strip does).
+    """
+    if not bad_winding.any():
+        return True
+    s1, s2, e = _two_face_pairs(edge_of, two)
+    i1, i2 = s1 // 3, s2 // 3
+    flip = bad_winding[e].astype(np.int64)
+    a = np.concatenate([2 * i1, 2 * i1 + 1])
+    b = np.concatenate([2 * i2 + flip, 2 * i2 + 1 - flip])
+    _, labels = _n_components(2 * n_faces, a, b)
+    return bool((labels[0::2] != labels[1::2]).all())
+
+
 def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> int:
     """Number of faces that intersect another face not sharing a vertex with it (pymeshlab); -1 without it."""
     if len(faces) == 0:
@@ -289,48 +413,29 @@ def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> int:
 
 
 def mesh_stats(mesh, self_intersections: bool = True) -> dict:
-    """Counts and triangle-quality figures of a mesh (frame-independent).
+    """Counts, topology and triangle-quality figures of a mesh (frame-independent).
 
     Args:
         mesh: trimesh.Trimesh with vertices (V, 3), faces (F, 3); may be empty.
         self_intersections: count self-intersecting faces (pymeshlab; the slowest figure).
 
     Returns:
-        {"vertices": V, "faces": F, "edges": E unique undirected edges, "boundary_edges": edges used by one face,
-        "non_manifold_edges": edges used by more than two faces, "components": connected components of the
-        faces (faces joined through shared vertices), "watertight": every edge is used by exactly two faces
-        and F > 0, "self_intersecting_faces": count (-1 if not computed), "degenerate_faces": zero-area faces,
-        "aspect_ratio_mean", "aspect_ratio_max": circumradius / (2 inradius) (1 for equilateral, inf for
-        degenerate; the mean is over non-degenerate faces), "angles_below_10_pct": % of triangle corner
-        angles under 10 degrees (corners of zero-length edges excluded)}. Empty meshes give 0 counts and NaN
-        figures.
+        {"vertices": V, "faces": F, then the `topology` keys (edges, boundary_edges, boundary_loops,
+        non_manifold_edges, non_manifold_vertices, components, watertight, winding_consistent,
+        inconsistent_winding_edges, euler_characteristic, genus), "self_intersecting_faces": count (-1 if not
+        computed), "degenerate_faces": zero-area faces, "aspect_ratio_mean", "aspect_ratio_max": circumradius /
+        (2 inradius) (1 for equilateral, inf for degenerate; the mean is over non-degenerate faces),
+        "angles_below_10_pct": % of triangle corner angles under 10 degrees (corners of zero-length edges
+        excluded)}. Empty meshes give 0 counts and NaN figures.
     """
     v = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
     f = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    out = {"vertices": int(len(v)), "faces": int(len(f)), "edges": 0, "boundary_edges": 0,
-           "non_manifold_edges": 0, "components": 0, "watertight": False, "self_intersecting_faces": 0,
+    out = {"vertices": int(len(v)), "faces": int(len(f)), **topology(v, f), "self_intersecting_faces": 0,
            "degenerate_faces": 0, "aspect_ratio_mean": math.nan, "aspect_ratio_max": math.nan,
            "angles_below_10_pct": math.nan}
     if len(f) == 0:
         return out
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    edges, counts = _edge_counts(f)
-    out["edges"] = int(len(edges))
-    out["boundary_edges"] = int((counts == 1).sum())
-    out["non_manifold_edges"] = int((counts > 2).sum())
-    out["watertight"] = bool((counts == 2).all())
-    used = np.unique(f)
-    remap = np.full(len(v), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    g = remap[edges]
-    adj = coo_matrix((np.ones(len(g)), (g[:, 0], g[:, 1])), shape=(len(used), len(used)))
-    out["components"] = int(connected_components(adj, directed=False)[0])
-    if self_intersections:
-        out["self_intersecting_faces"] = self_intersecting_faces(v, f)
-    else:
-        out["self_intersecting_faces"] = -1
+    out["self_intersecting_faces"] = self_intersecting_faces(v, f) if self_intersections else -1
     t = v[f]
     la = np.linalg.norm(t[:, 1] - t[:, 2], axis=1)   # opposite corner 0
     lb = np.linalg.norm(t[:, 2] - t[:, 0], axis=1)
@@ -357,13 +462,60 @@ def mesh_stats(mesh, self_intersections: bool = True) -> dict:
 
 # ------------------------------------------------------------------------------------------------ all
 
+def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(F, 3) float64 unit face normals by the right-hand rule of the winding (zero for degenerate faces)."""
+    t = v[f]
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def _orientation_metrics(pv, pf, gv, gf, samples_g, samples_p, face_g, face_p, gt_index) -> dict:
+    """Signed normal agreement with the GT: `normal_consistency_oriented` and `oriented_fraction`.
+
+    Args: the prediction (pv, pf) and GT (gv, gf) in the GT frame; samples_g / samples_p: (N, 3) sample
+        normals of each; face_g: (N,) the prediction face nearest each GT sample, face_p: (N,) the GT face
+        nearest each prediction sample (the cd_p2s queries); gt_index: closest-point index of the GT.
+    """
+    npf, ngf = _face_normals(pv, pf), _face_normals(gv, gf)
+    nc = 0.5 * float(np.einsum("nc,nc->n", samples_g, npf[face_g]).mean()
+                     + np.einsum("nc,nc->n", samples_p, ngf[face_p]).mean())
+    _, face_c, _ = gt_index.query(pv[pf].mean(axis=1))           # GT face nearest each prediction centroid
+    area = _area(pv, pf)
+    agree = np.einsum("fc,fc->f", npf, ngf[face_c]) > 0
+    return {"normal_consistency_oriented": nc, "oriented_fraction": float(area[agree].sum() / area.sum())}
+
+
+def _gt_figures(gt) -> tuple[object, dict]:
+    """The GT oriented outward (`datasets.meshes.orient_outward`) and its `gt_*` keys (see `compute_metrics`)."""
+    import trimesh
+
+    from datasets.meshes import orient_outward
+
+    if not isinstance(gt, trimesh.Trimesh):
+        gt = trimesh.Trimesh(*_check_mesh(gt, "GT"), process=False)
+    loaded = gt.metadata.get("orientation") if isinstance(getattr(gt, "metadata", None), dict) else None
+    gt, found = orient_outward(gt, name="GT", quiet=loaded is not None)  # its loader reported it already
+    # A GT flipped when it was loaded reads "outward" now; report what the loader found.
+    status = "flipped" if loaded == "flipped" and found == "outward" else found
+    topo = topology(gt.vertices, gt.faces)
+    figures = {"gt_orientation": status, "gt_orientable": status in ("outward", "flipped", "open")}
+    figures.update({f"gt_{k}": topo[k] for k in ("watertight", "boundary_edges", "non_manifold_edges",
+                                                   "components", "euler_characteristic", "genus")})
+    return gt, figures
+
+
 def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersections: bool = True,
                     re_fp_vertices: int | None = None, p2s_backend: str = "auto") -> dict:
     """Every metric of a prediction against its GT, as one flat dict (both meshes in the GT frame).
 
+    The GT is first passed through `datasets.meshes.orient_outward`: an inside-out closed GT is flipped, so
+    the oriented figures always compare against an outward GT (the harness's loaders flip it earlier, before
+    any input is sampled or rendered from it).
+
     Args:
         pred: trimesh.Trimesh prediction (may be empty: flagged, not an error). gt: trimesh.Trimesh with
-            positive area. Both must have finite vertices (ValueError otherwise).
+            positive area. Both must have finite vertices (ValueError otherwise). A `gt.metadata["orientation"]`
+            of "flipped" (set by `load_mesh(..., orient=True)`) is reported as the GT's orientation.
         n: area-uniform samples per mesh (GT with `seed`, prediction with `seed + 1`).
         self_intersections: count self-intersecting faces of the prediction (pymeshlab).
         re_fp_vertices: when the prediction's first K vertices are the GT's vertices in order (mesh to
@@ -371,34 +523,58 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
         p2s_backend: closest-point backend for `cd_p2s` (see `chamfer_l1_p2s`).
 
     Returns:
-        {"empty": no prediction face has area (then distances are inf, f_score/precision/recall 0 and
-        normal_consistency NaN), "n_samples", "seed",
+        {"empty": no prediction face has area (then distances are inf, f_score/precision/recall 0 and the
+        normal figures NaN), "n_samples", "seed",
         "cd_l1", "cd_l1_gt_to_pred", "cd_l1_pred_to_gt": sample Chamfer L1 and its two halves (GT-radius units),
         "cd_p2s", "cd_p2s_gt_to_pred", "cd_p2s_pred_to_gt": point-to-surface Chamfer L1 and halves (GT-radius
         units), "cd_l2_ndc" (squared NDC units), "f_score", "precision", "recall" (at 0.003 NDC),
-        "normal_consistency", then the `mesh_stats` keys of the prediction (vertices, faces, edges,
-        boundary_edges, non_manifold_edges, components, watertight, self_intersecting_faces,
-        degenerate_faces, aspect_ratio_mean, aspect_ratio_max, angles_below_10_pct)}.
+        "normal_consistency": unsigned, at nearest samples (module docstring),
+        "normal_consistency_oriented": signed, (mean_g n_g . n_pred(closest point of g) + mean_p n_p .
+        n_gt(closest point of p)) / 2 with face normals at the exact closest points of the cd_p2s queries, in
+        [-1, 1]: 1 for a mesh against itself, -1 for its inverted copy (so it is not bounded by the unsigned
+        figure, whose pairs are nearest samples),
+        "oriented_fraction": area-weighted fraction of the prediction's faces whose normal points the same way
+        (positive dot product) as the GT face closest to the face's centroid, in [0, 1];
+        both oriented figures are NaN when the GT is not orientable (see gt_orientation),
+        "gt_orientation": the GT's `orient_outward` status ("outward", "flipped", "open", "inconsistent",
+        "non_orientable"), "gt_orientable": False for the last two,
+        "gt_watertight", "gt_boundary_edges", "gt_non_manifold_edges", "gt_components",
+        "gt_euler_characteristic", "gt_genus": the GT's `topology` figures, to set beside the prediction's;
+        then the `mesh_stats` keys of the prediction (vertices, faces, edges, boundary_edges, boundary_loops,
+        non_manifold_edges, non_manifold_vertices, components, watertight, winding_consistent,
+        inconsistent_winding_edges, euler_characteristic, genus, self_intersecting_faces, degenerate_faces,
+        aspect_ratio_mean, aspect_ratio_max, angles_below_10_pct)}.
     """
-    (pv, pf), (gv, gf), empty = _prepare(pred, gt)
+    (pv, pf), (gv, _), empty = _prepare(pred, gt)
+    gt, gt_figures = _gt_figures(gt)                  # same vertices; faces reversed if it was inside-out
+    gf = np.asarray(gt.faces, dtype=np.int64)
     out: dict = {"empty": bool(empty), "n_samples": int(n), "seed": int(seed)}
     if empty:
         log.warning("empty prediction: distances reported as inf")
         out.update({"cd_l1": math.inf, "cd_l1_gt_to_pred": math.inf, "cd_l1_pred_to_gt": math.inf,
                     "cd_p2s": math.inf, "cd_p2s_gt_to_pred": math.inf, "cd_p2s_pred_to_gt": math.inf,
                     "cd_l2_ndc": math.inf, "f_score": 0.0, "precision": 0.0, "recall": 0.0,
-                    "normal_consistency": math.nan})
+                    "normal_consistency": math.nan, "normal_consistency_oriented": math.nan,
+                    "oriented_fraction": math.nan})
     else:
         from eval.closest_point import make_index
 
-        figures, G, P = _sample_metrics(pv, pf, gv, gf, n, seed, F_SCORE_THRESHOLD)
-        d_g, _, _ = make_index(pv, pf, p2s_backend).query(G)
-        d_p, _, _ = make_index(gv, gf, p2s_backend).query(P)
+        figures, (G, nG), (P, nP) = _sample_metrics(pv, pf, gv, gf, n, seed, F_SCORE_THRESHOLD)
+        gt_index = make_index(gv, gf, p2s_backend)
+        d_g, face_g, _ = make_index(pv, pf, p2s_backend).query(G)
+        d_p, face_p, _ = gt_index.query(P)
         out.update({"cd_l1": figures.pop("cd_l1"), "cd_l1_gt_to_pred": figures.pop("cd_l1_gt_to_pred"),
                     "cd_l1_pred_to_gt": figures.pop("cd_l1_pred_to_gt"),
                     "cd_p2s": float(d_g.mean() + d_p.mean()), "cd_p2s_gt_to_pred": float(d_g.mean()),
                     "cd_p2s_pred_to_gt": float(d_p.mean())})
         out.update(figures)
+        if gt_figures["gt_orientable"]:
+            out.update(_orientation_metrics(pv, pf, gv, gf, nG, nP, face_g, face_p, gt_index))
+        else:
+            log.info("GT is %s: oriented normal figures are NaN (only the unsigned one applies)",
+                     gt_figures["gt_orientation"].replace("_", "-"))
+            out.update({"normal_consistency_oriented": math.nan, "oriented_fraction": math.nan})
+    out.update(gt_figures)
     import trimesh
 
     out.update(mesh_stats(trimesh.Trimesh(pv, pf, process=False), self_intersections=self_intersections))

@@ -12,10 +12,11 @@ Flow of `run_sweep(sweep, work, ...)`:
    of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).
 4. Claim each pending run in the store (see "Sharing a store" below) and run it in a worker process (a
    local pool of `jobs` forked processes, each run in its own process so that a per-run timeout or a crash in
-   native code cannot take the sweep down; or Ray tasks with `executor="ray"`). The worker calls the method,
-   writes the output mesh atomically to `WORK/meshes/<key[:2]>/<key>.ply`, computes
-   `eval.metrics.compute_metrics(pred, gt)` in the normalised GT frame, and hands the result back; only this
-   (parent) process writes the store.
+   native code cannot take the sweep down; or, with `executor="ray"`, Ray tasks on a local Ray or an existing
+   cluster, see `eval.ray_executor`). The worker calls the method, computes
+   `eval.metrics.compute_metrics(pred, gt)` in the normalised GT frame, and hands the result back; the output
+   mesh lands atomically in `WORK/meshes/<key[:2]>/<key>.ply` (written by a local worker; by this process
+   from a Ray task's result). Only this (parent) process writes the store.
 
 Every failure of a run (exception, empty mesh, timeout, worker crash) is stored as a `failed` row with a
 one-line error, and the sweep goes on.
@@ -71,6 +72,7 @@ class RunnerConfig:
     executor: str = "local"        # local (process pool) or ray
     retry_failed: bool = False     # rerun runs stored as failed
     lease_s: float = LEASE_S       # a run whose holder sent no heartbeat for this many seconds is taken over
+    ray_address: str | None = None  # ray executor: cluster to join; None: $RAY_ADDRESS, else a local Ray
 
     def __post_init__(self):
         if not isinstance(self.jobs, int) or self.jobs < 1:
@@ -79,6 +81,8 @@ class RunnerConfig:
             raise ValueError(f"RunnerConfig.lease_s: expected a positive number of seconds, got {self.lease_s!r}")
         if self.executor not in EXECUTORS:
             raise ValueError(f"RunnerConfig.executor: expected one of {EXECUTORS}, got {self.executor!r}")
+        if self.ray_address and self.executor != "ray":
+            raise ValueError(f"a Ray address ({self.ray_address}) needs the ray executor (--executor ray)")
 
     @property
     def db_path(self) -> Path:
@@ -108,10 +112,15 @@ class SweepSummary:
 
 # --------------------------------------------------------------------------------------------------- inputs
 
+#: Version of the GT preparation, in the cache folder names: bumped when `prepare_gt` changes the GT it
+#: writes, so that no input derived from an older GT is reused (2: inside-out closed GTs flipped outward).
+GT_CACHE_VERSION = 2
+
+
 def shape_dir(work: str | Path, shape: ShapeRef, radius: float) -> Path:
     """Cache folder of one GT shape in one normalisation."""
     safe = "".join(c if c.isalnum() or c in "-_@." else "_" for c in shape.id)
-    return Path(work) / "inputs" / f"{safe}-{shape.gt_hash[:12]}-r{radius:g}"
+    return Path(work) / "inputs" / f"{safe}-{shape.gt_hash[:12]}-r{radius:g}-v{GT_CACHE_VERSION}"
 
 
 def prepare_gt(shape: ShapeRef, work: str | Path, radius: float = 1.0) -> tuple[ShapeRef, Path]:
@@ -135,11 +144,14 @@ def prepare_gt(shape: ShapeRef, work: str | Path, radius: float = 1.0) -> tuple[
         category = classify(mesh)
     if category not in ("closed", "open", "mixed"):
         raise ValueError(f"shape {shape.id}: unexpected category {category!r}")
+    from datasets.meshes import orient_outward
+
+    mesh, orientation = orient_outward(mesh, name=shape.source)  # before anything is sampled or rendered
     mesh, transform = normalize(mesh, radius=radius)
     folder.mkdir(parents=True, exist_ok=True)
     write_mesh(mesh, gt_path)
     meta = {"id": shape.id, "kind": shape.kind, "source": shape.source, "gen_seed": shape.gen_seed,
-            "category": category, "gt_hash": shape.gt_hash, "radius": radius,
+            "category": category, "gt_hash": shape.gt_hash, "radius": radius, "orientation": orientation,
             "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
             "transform": _jsonable(transform)}
     write_text(meta_path, json.dumps(meta, indent=2) + "\n")
@@ -161,28 +173,73 @@ def _jsonable(obj):
 
 
 def load_gt(gt_path: str | Path):
-    """The cached normalised GT as a trimesh.Trimesh (exact vertices and faces, no processing)."""
+    """The cached normalised GT as a trimesh.Trimesh (exact vertices and faces, no processing), oriented.
+
+    `prepare_gt` turns an inside-out closed GT outward before writing it and records what it found in
+    meta.json ("orientation"); that status goes into `mesh.metadata["orientation"]`, where
+    `eval.metrics.compute_metrics` reports it. A gt.ply without that record (written elsewhere) is passed
+    through `datasets.meshes.orient_outward` here.
+    """
     import trimesh
 
-    return trimesh.load(gt_path, process=False, force="mesh")
+    gt_path = Path(gt_path)
+    mesh = trimesh.load(gt_path, process=False, force="mesh")
+    meta_path = gt_path.parent / "meta.json"
+    found = json.loads(meta_path.read_text()).get("orientation") if meta_path.is_file() else None
+    if found is not None:
+        mesh.metadata["orientation"] = found
+        return mesh
+    from datasets.meshes import orient_outward
+
+    return orient_outward(mesh, name=str(gt_path))[0]
 
 
 def input_path(work: str | Path, shape: ShapeRef, kind: str, settings: dict, seed: int) -> Path:
-    """Cache path of one prepared input (a .npz file for point clouds, a folder for multi-view)."""
+    """Cache path of one prepared input (a .npz file for point clouds, a folder for multi-view).
+
+    A corrupted input (settings["corruption"], see `eval.sweep.Sweep.input_variants`) gets the suffix
+    `datasets.corrupt.cache_tag` of its corruption, e.g. `pc_n100000_s0_noise0.005.npz`."""
+    from datasets.corrupt import cache_tag
+
     folder = shape_dir(work, shape, settings["radius"])
+    tag = cache_tag(settings.get("corruption"))
     if kind == "pointcloud":
-        return folder / f"pc_n{settings['n_points']}_s{seed}.npz"
+        return folder / f"pc_n{settings['n_points']}_s{seed}{tag}.npz"
     if kind == "multiview":
-        return folder / f"mv_v{settings['views']}_r{settings['resolution']}_d{settings['distance']:g}"
+        return folder / f"mv_v{settings['views']}_r{settings['resolution']}_d{settings['distance']:g}{tag}"
     return folder / "gt.ply"
 
 
+def input_id(spec: RunSpec) -> tuple:
+    """What identifies the prepared input of a run: (shape id, input kind, seed, input settings as JSON)."""
+    from eval.sweep import canonical_json
+
+    return spec.shape.id, spec.input_kind, spec.seed, canonical_json(dict(spec.inputs))
+
+
 def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, seed: int, work: str | Path) -> Path:
-    """Creates the cached input of (shape, kind, seed) unless it exists; returns its path."""
+    """Creates the cached input of (shape, kind, settings, seed) unless it exists; returns its path.
+
+    A corrupted input is made from the clean one of the same sizes (prepared first, and cached too):
+    `datasets.corrupt.corrupt_cloud` for point clouds (its extra arrays, e.g. a scan's cameras, are saved
+    beside `points` and `normals`), `datasets.corrupt.add_depth_noise` for a multi-view capture."""
     path = input_path(work, shape, kind, settings, seed)
     if path.exists():
         return path
-    if kind == "pointcloud":
+    from datasets.corrupt import cache_tag
+
+    corruption = dict(settings.get("corruption") or {})
+    clean = {k: v for k, v in settings.items() if k != "corruption"}
+    if kind == "pointcloud" and cache_tag(corruption):
+        from datasets.corrupt import corrupt_cloud
+
+        with np.load(prepare_input(shape, gt_path, kind, clean, seed, work)) as z:
+            points, normals = z["points"], z["normals"]
+        arrays = corrupt_cloud(load_gt(gt_path), points, normals, corruption, seed, float(settings["radius"]))
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+    elif kind == "pointcloud":
         from datasets.sampling import sample_points
 
         points, normals = sample_points(load_gt(gt_path), settings["n_points"], seed)
@@ -190,10 +247,15 @@ def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, see
             with open(tmp, "wb") as fh:
                 np.savez(fh, points=np.asarray(points, np.float32), normals=np.asarray(normals, np.float32))
     elif kind == "multiview":
-        from datasets.capture import capture
+        from datasets.capture import MultiView, capture
+        from datasets.corrupt import add_depth_noise
 
-        views = capture(load_gt(gt_path), views=settings["views"], resolution=settings["resolution"],
-                        distance=settings["distance"])
+        if cache_tag(corruption):
+            views = MultiView.load(prepare_input(shape, gt_path, kind, clean, seed, work))
+            views = add_depth_noise(views, float(corruption.get("depth_noise", 0.0)) * float(settings["radius"]), seed)
+        else:
+            views = capture(load_gt(gt_path), views=settings["views"], resolution=settings["resolution"],
+                            distance=settings["distance"])
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
         try:
             honour_umask(tmp)  # mkdtemp makes it 0o700
@@ -369,7 +431,7 @@ class _Claims:
                 log.info("run %s (%s on %s) was left running by an interrupted sweep; redoing it",
                          spec.key[:12], spec.method, spec.shape.id)
             self.on_start(spec)
-            err = self.input_errors.get((spec.shape.id, spec.input_kind, spec.seed))
+            err = self.input_errors.get(input_id(spec))
             if err is not None:
                 self.on_done(spec, {"status": "failed", "error": err})
                 continue
@@ -441,46 +503,10 @@ def _run_local(claims: _Claims, work: str, jobs: int, timeout_s: float, on_done:
                 on_done(spec, outcome)
 
 
-def _import_ray():
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("the ray executor needs Ray, which is not installed: pip install -e .[ray]") from None
-    return ray
-
-
 def _run_ray(claims: _Claims, work: str, jobs: int, timeout_s: float, on_done: Callable) -> None:
-    ray = _import_ray()
-    if not ray.is_initialized():
-        ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
-    remote = ray.remote(num_cpus=1, max_retries=0)(execute_run)
-    active: dict = {}  # ObjectRef -> (spec, deadline)
-    while True:
-        while len(active) < jobs and (item := claims.next()) is not None:
-            spec, gt_path = item
-            ref = remote.remote(spec, str(gt_path), str(work), get_method(spec.method))
-            active[ref] = (spec, time.monotonic() + timeout_s)
-        if not active:
-            if claims.finished:
-                return
-            claims.wait()
-            continue
-        ready, _ = ray.wait(list(active), num_returns=1, timeout=1.0)
-        claims.beat()
-        for ref in list(active):
-            spec, deadline = active[ref]
-            outcome = None
-            if ref in ready:
-                try:
-                    outcome = ray.get(ref)
-                except Exception as exc:  # noqa: BLE001 - a crashed Ray worker is a failed run
-                    outcome = {"status": "failed", "error": one_line(exc)}
-            elif time.monotonic() > deadline:
-                ray.cancel(ref, force=True)
-                outcome = {"status": "failed", "error": f"Timeout: the run took more than {timeout_s:g} s"}
-            if outcome is not None:
-                del active[ref]
-                on_done(spec, outcome)
+    from eval.ray_executor import run_ray
+
+    run_ray(claims, work, jobs, timeout_s, on_done)
 
 
 # --------------------------------------------------------------------------------------------------- sweep
@@ -512,8 +538,10 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
     if not expand(sweep, sweep.resolved_shapes()):
         kinds = ", ".join(f"{m} takes {get_method(m).input_kind}" for m in sweep.methods)
         raise ValueError(f"the sweep has no runs: {kinds}, but it asks for {', '.join(sweep.inputs)} input")
-    if runner.executor == "ray":
-        _import_ray()
+    if runner.executor == "ray":  # Ray missing or a cluster that does not answer: fail before preparing anything
+        from eval.ray_executor import connect
+
+        connect(runner.ray_address, runner.jobs)
     shapes, gts = resolve_and_prepare_shapes(sweep, work)
     runs = expand(sweep, shapes)
     summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
@@ -534,17 +562,18 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
         if not pending:
             return summary
 
-        needed = sorted({(s.shape.id, s.input_kind, s.seed) for s in pending})
+        needed = sorted({input_id(s) for s in pending})
         by_id = {s.id: s for s in shapes}
-        input_errors = {}  # (shape id, kind, seed) -> error; its runs are stored failed when claimed
-        for shape_id, kind, seed in progress(needed, desc="inputs", unit="input", leave=False):
-            spec = next(s for s in pending if (s.shape.id, s.input_kind, s.seed) == (shape_id, kind, seed))
+        input_errors = {}  # input_id -> error; its runs are stored failed when claimed
+        for ident in progress(needed, desc="inputs", unit="input", leave=False):
+            shape_id, kind, seed, _ = ident
+            spec = next(s for s in pending if input_id(s) == ident)
             try:
                 prepare_input(by_id[shape_id], gts[shape_id], kind, dict(spec.inputs), seed, work)
             except Exception as exc:  # noqa: BLE001 - an input that cannot be prepared fails its runs
                 err = f"input preparation failed: {one_line(exc)}"
                 log.warning("%s %s seed %d: %s", shape_id, kind, seed, err)
-                input_errors[(shape_id, kind, seed)] = err
+                input_errors[ident] = err
 
         bar = progress(total=len(pending), desc=f"sweep {sweep.name}", unit="run")
 

@@ -21,6 +21,12 @@ Input kinds: "pointcloud" (`n_points` area-uniform samples with normals), "multi
 capture at `resolution` and `distance`), and "mesh" (the normalised GT itself, for mesh to DMesh / Table 1;
 use `radius: 0.8` there, the paper's frame for that experiment).
 
+Input variants (robustness sweeps): `variants:` lists dicts of input settings, each one input of every run of
+its input kind, e.g. `[{}, {noise: 0.005}, {outliers: 0.01}, {scan: 6, noise: 0.0025}, {views: 8}]` (the keys
+and their levels: `datasets.corrupt`). Levels are validated (one-line errors), levels at their clean value
+are dropped, and the canonical dict goes into the input settings as `"corruption"` (so into the run key and the
+input's cache name). A sweep without `variants` keeps the plain settings and run keys.
+
 User-given values are checked here for every command: `parse_value` / `parse_sets` read `--set KEY=VALUE`
 values and sweep files as YAML (one loader, which also reads `1e-3` as a number), and `check_seed`,
 `check_points` and `check_capture_size` bound seeds and sizes, saying what a larger value would cost.
@@ -193,6 +199,7 @@ class Sweep:
     timeout_s: float = 1800.0                 # per-run wall-clock limit in seconds
     data_root: str | None = None              # real meshes' root; None: $DMESH_DATA or ../shared/meshes
     skip_missing: bool = False                # leave out mesh files that do not exist (with a warning)
+    variants: tuple[Mapping[str, Any], ...] = ()  # input variants (corruptions, capture sizes); (): inputs as above
 
     def __post_init__(self):
         for name in ("methods", "shapes", "inputs", "seeds"):
@@ -234,12 +241,40 @@ class Sweep:
         object.__setattr__(self, "configs", configs)
         if len(set(self.methods)) != len(self.methods) or len(set(self.shapes)) != len(self.shapes):
             raise ValueError("Sweep: methods and shapes must not repeat")
+        self._check_variants()
+
+    def _check_variants(self) -> None:
+        """Validates `variants` (see `input_variants`); one-line ValueError naming the variant and the key."""
+        if isinstance(self.variants, Mapping) or not isinstance(self.variants, (list, tuple)):
+            raise ValueError(f"Sweep.variants: expected a list of input-setting dicts, got {self.variants!r}")
+        object.__setattr__(self, "variants", tuple(dict(v) if isinstance(v, Mapping) else v for v in self.variants))
+        seen: dict[str, int] = {}
+        for i, variant in enumerate(self.variants):
+            canon = self._canonical(variant, f"Sweep.variants[{i}]")
+            kind = _variant_kind(canon)
+            if kind is not None and kind not in self.inputs:
+                raise ValueError(f"Sweep.variants[{i}]: {canonical_json(canon)} changes {kind} input, which the "
+                                 f"sweep does not run (inputs: {', '.join(self.inputs)})")
+            if canonical_json(canon) in seen:
+                raise ValueError(f"Sweep.variants[{i}]: the same input as variants[{seen[canonical_json(canon)]}] "
+                                 f"({canonical_json(canon)} once levels at their clean value are dropped)")
+            seen[canonical_json(canon)] = i
+            if "views" in canon or "resolution" in canon:
+                check_capture_size(canon.get("views", self.views), canon.get("resolution", self.resolution),
+                                   (f"Sweep.variants[{i}].views", f"Sweep.variants[{i}].resolution"))
+
+    def _canonical(self, variant, what: str) -> dict:
+        from datasets.corrupt import canonical_variant
+
+        return canonical_variant(variant, n_points=self.n_points, views=self.views, resolution=self.resolution,
+                                 what=what)
 
     # -- (de)serialisation
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         for k in ("methods", "shapes", "inputs", "seeds"):
             d[k] = list(d[k])
+        d["variants"] = [dict(v) for v in self.variants]
         d["configs"] = {m: [dict(c) for c in cs] for m, cs in self.configs.items()}
         return d
 
@@ -317,15 +352,39 @@ class Sweep:
     def root(self) -> Path:
         return Path(self.data_root) if self.data_root else default_data_root()
 
-    def input_settings(self, kind: str) -> dict:
-        """The settings that define the input of `kind` (they go into the run key)."""
+    def input_settings(self, kind: str, variant: Mapping | None = None) -> dict:
+        """The settings that define the input of `kind` (they go into the run key).
+
+        `variant` (a canonical variant of `input_variants`) adds its settings as `"corruption"` (a dict, `{}`
+        for the clean input of a sweep with variants), and its `views` / `resolution` replace the sweep's.
+        Without a variant the settings are those of a sweep without `variants` (unchanged run keys)."""
         base = {"radius": float(self.radius), "metric_samples": self.metric_samples}
         if kind == "pointcloud":
-            return {**base, "n_points": self.n_points}
-        if kind == "multiview":
-            return {**base, "n_points": self.n_points, "views": self.views, "resolution": self.resolution,
-                    "distance": float(self.distance)}
-        return base
+            out = {**base, "n_points": self.n_points}
+        elif kind == "multiview":
+            out = {**base, "n_points": self.n_points, "views": self.views, "resolution": self.resolution,
+                   "distance": float(self.distance)}
+        else:
+            return base
+        if variant is not None:
+            out.update({k: variant[k] for k in ("views", "resolution") if k in variant and kind == "multiview"})
+            out["corruption"] = dict(variant)
+        return out
+
+    def input_variants(self, kind: str) -> list[dict | None]:
+        """The canonical variants (`datasets.corrupt.canonical_variant`) that apply to input `kind`: the clean
+        one and those changing `kind`; [None] (the plain input) when the sweep has no `variants`, or for "mesh".
+
+        A variant is a dict of input settings at one level each (e.g. `{noise: 0.005}`, `{scan: 6, outliers:
+        0.01}`, `{views: 8}`; `{}` is the clean input); each one is a separate input of every run."""
+        if not self.variants or kind == "mesh":
+            return [None]
+        out = []
+        for i, v in enumerate(self.variants):
+            canon = self._canonical(v, f"Sweep.variants[{i}]")
+            if _variant_kind(canon) in (None, kind):
+                out.append(canon)
+        return out
 
 
 @dataclass(frozen=True)
@@ -429,6 +488,12 @@ def code_version(method, root: str | Path = REPO) -> str:
 
 # --------------------------------------------------------------------------------------------------- runs
 
+def _variant_kind(variant: Mapping) -> str | None:
+    from datasets.corrupt import variant_kind
+
+    return variant_kind(variant)
+
+
 def canonical_json(obj: Any) -> str:
     """JSON with sorted keys and no whitespace, floats as repr: the hashing form."""
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
@@ -526,8 +591,8 @@ def expand(sweep: Sweep, shapes: list[ShapeRef] | None = None) -> list[RunSpec]:
     versions = {m.name: code_version(m) for m in methods}
     runs = []
     for shape in shapes:
-        for kind in sweep.inputs:
-            settings = sweep.input_settings(kind)
+        for kind, variant in ((k, v) for k in sweep.inputs for v in sweep.input_variants(k)):
+            settings = sweep.input_settings(kind, variant)
             for m in methods:
                 if m.input_kind != kind:
                     continue

@@ -316,6 +316,23 @@ def test_depth_start_reconstruction(sphere, sphere_views, one_thread):
 
 
 @needs_gl
+def test_refine_never_keeps_a_mesh_that_renders_worse_than_its_start(sphere, sphere_views, one_thread):
+    # The start is a candidate of select_best: whatever the steps do, the kept mesh's image loss over all
+    # views is at most the start's. A learning rate 100x the preset's makes the steps hurt, so the start wins.
+    for lr, start_wins in ((1e-5, None), (1e-3, True)):
+        cfg = MultiViewConfig.refine(init_preset="tiny", init_points=20_000, steps_phase1=(4,), steps_phase2=(2,),
+                                     resolution=48, lr_first=lr, bound_first=lr)
+        res = reconstruct(sphere_views, cfg)
+        start, epochs = res.info["start_eval_loss"], res.info["epochs"]
+        kept = res.info["selected_epoch"]
+        assert kept in (-1, 0) and len(res.history) == 6
+        assert (start if kept == -1 else epochs[0]["eval_loss"]) <= min(start, epochs[0]["eval_loss"])
+        if start_wins:
+            assert kept == -1 and epochs[0]["eval_loss"] > start
+        assert _p2s(res.mesh, sphere) < DEPTH_LIMIT * (1.0 if kept == -1 else 1.5)
+
+
+@needs_gl
 def test_without_select_best_the_last_epoch_is_returned(sphere_views):
     cfg = MultiViewConfig.tiny(steps_phase1=(3, 2), steps_phase2=(1, 1), select_best=False)
     res = reconstruct(sphere_views, cfg)

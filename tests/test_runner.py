@@ -6,7 +6,6 @@ hull of the input points, with an optional delay, failure or invocation counter)
 """
 from __future__ import annotations
 
-import importlib.util
 import os
 import signal
 import subprocess
@@ -264,20 +263,29 @@ def test_resume_after_killed_process(fake, tmp_path):
     assert sorted(set(calls)) == [str(x) for x in seeds]
 
 
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed (pip install -e .[ray])")
-def test_ray_executor_runs_the_same_sweep(fake, tmp_path):
+def test_ray_executor_runs_the_same_sweep(fake, tmp_path, monkeypatch):
+    """A local Ray (no address, no $RAY_ADDRESS) stores what the local executor stores, meshes included."""
     import ray
 
-    from eval.runner import RunnerConfig, run_sweep
+    from eval.runner import RunnerConfig, resolve_mesh_path, run_sweep
 
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    sweep = small_sweep(methods=("fake_hull", "fake_fail"))
+    run_sweep(sweep, RunnerConfig(work=str(tmp_path / "local")))
     try:
-        s = run_sweep(small_sweep(methods=("fake_hull", "fake_fail")),
-                      RunnerConfig(work=str(tmp_path / "work"), executor="ray"))
+        s = run_sweep(sweep, RunnerConfig(work=str(tmp_path / "work"), executor="ray", jobs=2))
     finally:
         ray.shutdown()
     assert (s.done, s.failed) == (1, 1)
-    with Store(tmp_path / "work" / "results.sqlite") as store:
-        assert {r["method"]: r["status"] for r in store.rows()} == {"fake_hull": "done", "fake_fail": "failed"}
+    with Store(tmp_path / "work" / "results.sqlite") as store, Store(tmp_path / "local" / "results.sqlite") as ref:
+        rows, want = store.rows(), {r["key"]: r for r in ref.rows()}
+    assert {r["method"]: r["status"] for r in rows} == {"fake_hull": "done", "fake_fail": "failed"}
+    for r in rows:
+        w = want[r["key"]]
+        assert (r["status"], r["error"], r["metrics_json"]) == (w["status"], w["error"], w["metrics_json"])
+        if r["status"] == "done":
+            mesh = resolve_mesh_path(r, tmp_path / "work" / "results.sqlite")
+            assert mesh.read_bytes() == resolve_mesh_path(w, tmp_path / "local" / "results.sqlite").read_bytes()
 
 
 def test_ray_missing_is_one_clear_error(fake, tmp_path, monkeypatch):

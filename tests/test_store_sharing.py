@@ -409,25 +409,12 @@ def test_a_killed_sweep_leaves_the_other_to_finish(tmp_path):
     assert summary["failed"] == 0 and summary["done"] + summary["skipped"] + summary["elsewhere"] == len(seeds)
 
 
-def test_ray_executor_path_claims_runs_too(fake, tmp_path, monkeypatch):
-    """`_run_ray` with a stand-in for Ray (Ray may not be installed): runs go through the same claims."""
-    import types
+def test_ray_executor_path_claims_runs_too(fake, tmp_path):
+    """The Ray executor (a real local Ray) goes through the same claims: a run held elsewhere is waited for."""
+    import ray
 
     from eval.runner import RunnerConfig
 
-    class Ref:
-        def __init__(self, value):
-            self.value = value
-
-    def remote_factory(**_):
-        def wrap(fn):
-            return types.SimpleNamespace(remote=lambda *a: Ref(fn(*a)))
-        return wrap
-
-    fake_ray = types.SimpleNamespace(is_initialized=lambda: True, remote=remote_factory,
-                                     wait=lambda refs, num_returns, timeout: (refs[:num_returns], refs[num_returns:]),
-                                     get=lambda ref: ref.value, cancel=lambda *a, **k: None)
-    monkeypatch.setitem(sys.modules, "ray", fake_ray)
     work, counter = tmp_path / "work", tmp_path / "calls.txt"
     sweep = _sweep((0, 1), counter)
     runner = RunnerConfig(work=str(work), executor="ray", jobs=2)
@@ -436,11 +423,17 @@ def test_ray_executor_path_claims_runs_too(fake, tmp_path, monkeypatch):
         s.claim(specs[1].identity(), _other_host("busy"))
 
     def other_sweep():
+        deadline = time.monotonic() + 120
+        while not ray.is_initialized() and time.monotonic() < deadline:  # the sweep is past starting Ray
+            time.sleep(0.1)
         time.sleep(1.0)
         with Store(runner.db_path) as s:
             s.finish(specs[1].key, status="done", metrics={}, timings={"total": 1.0}, lease=_other_host("busy"))
 
-    summary = _sweep_beside(other_sweep, sweep, runner)
+    try:
+        summary = _sweep_beside(other_sweep, sweep, runner)
+    finally:
+        ray.shutdown()
     assert (summary.done, summary.failed, summary.skipped, summary.elsewhere) == (1, 0, 0, 1)
     assert [seed for seed, _ in _calls(counter)] == [0]
     with Store(runner.db_path) as s:

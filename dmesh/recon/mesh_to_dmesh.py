@@ -99,7 +99,7 @@ class Snapshot:
     fp: float
     points: np.ndarray    # (N, 3) float64
     weights: np.ndarray   # (N,) float64
-    faces: np.ndarray     # (K, 3) int64 WDT faces on GT vertices in this state
+    faces: np.ndarray     # (K, 3) int64 WDT faces on GT vertices in this state (wound at the end of the run)
 
 
 @dataclass(kw_only=True)
@@ -327,6 +327,27 @@ def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iters: int = 20) ->
     return c
 
 
+def _orient(points: np.ndarray, weights: np.ndarray, faces: np.ndarray, gt_vertices: np.ndarray,
+            gt_faces: np.ndarray) -> np.ndarray:
+    """The same (K, 3) faces, wound by `dmesh.extract.surface` on the state's WDT without changing the set:
+    closed parts outward (tets inside / outside), the rest like the input mesh (the normals of its faces,
+    at their centroids, stand in for input normals)."""
+    from dmesh.extract import SurfaceConfig, surface
+
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return faces
+    pd = PowerDiagram.from_points(points, weights)
+    ids = pd.face_ids(faces)
+    walls = np.zeros(len(pd.faces), bool)
+    walls[ids[ids >= 0]] = True
+    tri = gt_vertices[gt_faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    wound = surface(pd, walls, (tri.mean(1), normal), SurfaceConfig(clean=False)).faces
+    return np.concatenate([wound, faces[ids < 0]])  # (a face not in this WDT, which should not happen, stays)
+
+
 def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
                   callback: Callable[[dict], None] | None = None) -> MeshToDMeshResult:
     """Optimises a DMesh whose WDT faces on the given vertices reproduce the given faces.
@@ -387,7 +408,11 @@ def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
             break
     reals = run.reals.numpy().copy()
     points, weights = run.points.detach().numpy().copy(), run.weights.detach().numpy().copy()
-    mesh = trimesh.Trimesh(points, last["faces"], process=False)
+    # The output faces are wound outward on closed parts and like the input elsewhere (`_orient`).
+    wound = np.asarray(faces, dtype=np.int64)  # the input's winding (`_validate` sorts its triples)
+    for snap in {id(s): s for s in kept.values() if s is not None}.values():
+        snap.faces = _orient(snap.points, snap.weights, snap.faces, v, wound)
+    mesh = trimesh.Trimesh(points, _orient(points, weights, last["faces"], v, wound), process=False)
     dm = DMesh(points, weights, reals, dtype=torch.float64)
     info = {"gt_vertices": run.g, "gt_faces": int(len(f)), "points": run.n}
     return MeshToDMeshResult(

@@ -39,7 +39,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    "both" applies both; "sheet" is the point-cloud extraction's one-sheet rule, `dmesh.extract`; "none"
    neither), and with `depth_tolerance` minus the faces whose centroid is not within it of the captured
    depth in any view (`depth_consistent_faces`: interior faces seen through cracks and floaters; not
-   upstream), oriented consistently, mapped back to the input frame. The same extraction (visibility at
+   upstream), made an oriented, closed surface (`dmesh.extract.surface`; open sheets face the cameras that
+   saw them), mapped back to the input frame. The same extraction (visibility at
    the optimised resolution) gives the mesh each re-seed samples; the last epoch's is extracted once, at
    the capture's resolution, unless `select_best` may pick another. With
    `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
@@ -62,13 +63,12 @@ from typing import Callable
 import numpy as np
 import torch
 
-from dmesh.extract import mesh_faces
+from dmesh.extract import SurfaceConfig, mesh_faces, surface_of_mesh, towards_cameras
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import ProbabilityConfig, dmin
 from dmesh.recon.init import seeds_and_voronoi
 from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
 from dmesh.recon.optim import BoundedAdam, StepConfig
-from dmesh.recon.pointcloud import orient_faces
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +78,9 @@ MIN_BOX = 1.05
 BOX_MARGIN = 0.98
 INTERIOR_MODES = ("apex", "visible", "both", "sheet", "none")
 INIT_MODES = ("grid", "depth")
+#: The `refine` preset's phase-1 and phase-2 steps and its learning rate (= per-step bound).
+REFINE_STEPS = (10, 5)
+REFINE_LR = 1e-5
 #: Depth range (normalised frame: the object's diameter) mapped to 1 in the depth channel.
 DEPTH_SPAN = 2.0
 
@@ -134,9 +137,10 @@ class MultiViewConfig:
     active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
     threshold: float = 0.5           # real value above which a point is on the final mesh
     interior: str = "apex"           # interior-face removal: one of INTERIOR_MODES
-    select_best: bool = False        # return the epoch whose mesh renders closest to all the images
+    select_best: bool = False        # return the epoch whose mesh renders closest to all the images (with
+                                     # init="depth", the start too: info["selected_epoch"] -1)
     depth_tolerance: float | None = None  # keep only faces within this of the captured depth in some view
-    orient: bool = True              # orient the output faces consistently per component
+    orient: bool = True              # output the faces' oriented, closed surface (dmesh.extract.surface)
     save_every: int = 50             # steps between resumable state saves (with a state path)
     kernels: str = "native"          # Delta recomputation: "native" (C++) or "reference" (torch, for checks)
     seed: int = 0                    # seed of every random choice
@@ -266,6 +270,20 @@ class MultiViewConfig:
         return cls(**base)
 
     @classmethod
+    def refine(cls, **overrides) -> "MultiViewConfig":
+        """The `depth` start followed by image-loss steps (not upstream): phase-1 steps with the soft renderer at
+        a small learning rate (the start's points are about 0.01 apart), then phase-2 steps on the reals, and
+        `select_best` with the start as a candidate, so the result is never a mesh that renders farther from
+        the images than the start. For depth maps with noise, where the diffuse images carry the shape's
+        normals. Its measurements: `reports/table2_multiview.md` and `python -m eval.bench refine`."""
+        base = dict(init="depth", refine_seeds=(), steps_phase1=(REFINE_STEPS[0],), steps_phase2=(REFINE_STEPS[1],),
+                    lr_first=REFINE_LR, bound_first=REFINE_LR, max_real_first=3e-3, views_per_step=6,
+                    resolution=None, lambda_weight=0.0, lambda_real_start=1e-3, real_ramp_steps=0,
+                    freeze_phase2=(0,), interior="both", depth_tolerance=0.02, select_best=True, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
     def tiny(cls, **overrides) -> "MultiViewConfig":
         """Seconds, for tests: the fast preset's recipe on an 8^3 grid and one re-seed of 300 points (600
         Voronoi vertices), 30 + 10 and 15 + 10 steps at 48 pixels; depth tolerance 0.1, about two of its
@@ -279,7 +297,7 @@ class MultiViewConfig:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "MultiViewConfig":
-        """`paper`, `fast`, `depth` or `tiny`."""
+        """`paper`, `fast`, `depth`, `refine` or `tiny`."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
         return getattr(cls, name)(**overrides)
@@ -298,7 +316,25 @@ class MultiViewConfig:
         return sum(self.steps_phase1) + sum(self.steps_phase2)
 
 
-PRESETS = ("paper", "fast", "depth", "tiny")
+PRESETS = ("paper", "fast", "depth", "refine", "tiny")
+#: Per preset: (whether it takes image-loss gradient steps, how it differs from the paper). Reports print
+#: these beside every DMesh row.
+RECIPES = {
+    "paper": (True, "the published recipe: a 20^3 grid, then re-seeds of 1K, 3K and 10K surface samples, 500 "
+                    "soft-renderer + 500 tetrahedral-renderer steps per epoch, 16 views per step at the capture's "
+                    "resolution, L1 of diffuse + depth. Differs: silhouette gradients come from the soft "
+                    "renderer's analytic coverage (upstream: a 0.1 x hard-render term), depth channel slope 0.5."),
+    "fast": (True, "the paper's procedure cut to a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1K and 3K "
+                   "samples, 60 + 20 / 40 + 20 / 40 + 20 steps, 6 views per step; interior faces removed by "
+                   "apex and visibility, faces off the captured depth dropped, the epoch whose mesh renders "
+                   "closest to the images kept."),
+    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
+                     "pixels, then the multi-view interior and depth filters; no image-loss step."),
+    "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
+                     "tetrahedral-renderer steps (6 views per step), keeping the start when the steps do not "
+                     "lower the image loss over all views."),
+    "tiny": (True, "tests only: an 8^3 grid and one re-seed of 300 samples at 48 pixels."),
+}
 
 
 @dataclass
@@ -442,7 +478,7 @@ def depth_init(vw: _Views, center: np.ndarray, scale: float, box: float, cfg: Mu
     pts = (_lifted_points(vw) - center) * scale
     if len(pts) > cfg.init_points:
         pts = pts[np.sort(rng.choice(len(pts), int(cfg.init_points), replace=False))]
-    pc_cfg = PointCloudConfig.preset(cfg.init_preset, seed=cfg.seed)
+    pc_cfg = PointCloudConfig.preset(cfg.init_preset, seed=cfg.seed, orient=False)  # its mesh is not used
     res = reconstruct_points(pts, None, pc_cfg)
     dm = res.dmesh
     back = 1.0 / res.scale
@@ -679,6 +715,17 @@ def _mesh_faces(dm, threshold: float, pd, interior: str, cameras, render: bool =
     return keep, before - int(keep.sum()), images
 
 
+def _start_candidate(dm, cfg: MultiViewConfig, cameras, consistent, loss_fn) -> dict:
+    """`select_best`'s record of the starting DMesh (epoch -1): its mesh rendered opaque from every view
+    (at the optimised resolution) and scored by `loss_fn`, with a copy of its parameters."""
+    pd = dm.power_diagram()
+    _, _, images = _mesh_faces(dm, cfg.threshold, pd, cfg.interior, cameras, True, consistent)
+    with torch.no_grad():
+        loss = float(loss_fn(dict(zip(("diffuse", "depth", "alpha"), (torch.from_numpy(x) for x in images)))))
+    return {"epoch": -1, "eval_loss": loss, "points": dm.points.detach().clone(),
+            "weights": dm.weights.detach().clone(), "reals": dm.reals.detach().clone()}
+
+
 def extract(dm, threshold: float = 0.5, pd=None, interior: str = "apex", cameras=None, consistent=None):
     """The mesh of a DMesh after interior-face removal, as a trimesh over the used points (DMesh frame).
 
@@ -800,6 +847,11 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
     if resumed is None:
         dm = init_points(0, None)
         opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(0))
+        if cfg.select_best and cfg.init == "depth":
+            # The depth start is a candidate too (epoch -1): image-loss steps never leave a worse mesh.
+            with clock("extract"):
+                best = _start_candidate(dm, cfg, cameras, consistent, lambda out: image_loss(out, torch.arange(n_views)))
+            info["start_eval_loss"] = best["eval_loss"]
     else:
         epoch, phase, start = resumed["epoch"], resumed["phase"], resumed["step"]
         dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
@@ -925,9 +977,12 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         else:
             pd = pd if pd is not None else dm.power_diagram()
             mesh, removed = extract(dm, cfg.threshold, pd, cfg.interior, full, consistent)
-    if cfg.orient:
+    if cfg.orient:  # the faces' closed, outward surface (dmesh.extract.surface); sheets face their cameras
         with clock("orient"):
-            orient_faces(mesh)
+            seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
+            towards = towards_cameras((_lifted_points(vw) - center) * scale, eyes[seen])
+            mesh = surface_of_mesh(mesh, pd, towards, SurfaceConfig(seed=cfg.seed))
+            info["surface"] = mesh.metadata.pop("surface")
     mesh.vertices = np.asarray(mesh.vertices) / scale + center
     info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)), "points": len(dm),
                  "interior_removed": removed, "hidden_points": int(pd.hidden.sum())})

@@ -13,8 +13,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
 3. Phase 2 (`steps_phase2`): the WDT is computed once and frozen: its faces get Lambda_wdt = 1 and
    Lambda = dmin of their real values; only the reals move, under expected Chamfer + the growth real
    regulariser. At the steps in `freeze_phase2`, points on the current mesh are frozen at real value 1.
-4. The mesh: faces of the final WDT whose three real values exceed `threshold`, oriented consistently per
-   connected component, mapped back to the input frame.
+4. The mesh: faces of the final WDT whose three real values exceed `threshold` (`extraction`); with
+   `orient`, their closed, outward surface (`dmesh.extract.surface`: tets inside / outside, small holes
+   filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
 
 The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
 this module supplies each phase's step function (`phase1_step`, `phase2_step` in `reconstruct`).
@@ -32,6 +33,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from dmesh.extract import SurfaceConfig, extract, orient_faces  # extract, orient_faces: re-exported
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import ProbabilityConfig, dmin
@@ -75,6 +77,7 @@ class PointCloudConfig:
     real_ramp_steps: int = 100      # phase-1 steps of the linear ramp of the real coefficient
     lambda_quality: float = 1e-3    # quality regulariser (aspect ratio x max edge x Lambda)
     lambda_normal: float = 0.0      # normal term of Eq. 13 (needs input normals)
+    train_phase1: tuple = ("points", "weights", "reals")  # what phase-1 steps move (upstream: all three)
     freeze_phase1: tuple = ()       # phase-1 steps at which points on the mesh are frozen real
     freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
     alpha_wdt: float = 1000.0       # sigmoid sharpness of Lambda_wdt
@@ -85,7 +88,7 @@ class PointCloudConfig:
     active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
     threshold: float = 0.5          # real value above which a point is on the final mesh
     extraction: str = "sheet"       # which real faces make the mesh: "all", "no_interior", "sheet" (dmesh.extract)
-    orient: bool = True             # orient the output faces consistently per component
+    orient: bool = True             # output the faces' oriented, closed surface (dmesh.extract.surface)
     save_every: int = 50            # steps between resumable state saves (with a state path)
     workers: int = 2                # threads of the k-d tree queries
     kernels: str = "native"         # "native" (C++ expected Chamfer and Delta) or "reference" (torch, for checks)
@@ -120,6 +123,10 @@ class PointCloudConfig:
             raise ValueError(f"PointCloudConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
         object.__setattr__(self, "knn_thresholds", tuple(float(t) for t in self.knn_thresholds))
         object.__setattr__(self, "freeze_phase1", tuple(int(s) for s in self.freeze_phase1))
+        train = (self.train_phase1,) if isinstance(self.train_phase1, str) else tuple(self.train_phase1)
+        if not train or set(train) - set(TRAIN_ALL):
+            raise ValueError(f"PointCloudConfig.train_phase1 must name some of {', '.join(TRAIN_ALL)}, got {train}")
+        object.__setattr__(self, "train_phase1", train)
         object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
 
     @classmethod
@@ -153,6 +160,21 @@ class PointCloudConfig:
         return cls(**base)
 
     @classmethod
+    def noisy(cls, **overrides) -> "PointCloudConfig":
+        """For noisy scans (not upstream): the `fast` start at 10K seeds, then 20 phase-1 steps that move only
+        the positions, at the paper's lr 3e-4 with the paper's 100K target points and samples, then the fast
+        preset's phase 2. The start puts the mesh
+        vertices on noisy samples; the expected Chamfer's steps pull them toward the surface the samples
+        spread around. On clean input the same steps only cost accuracy (the start's vertices already lie on
+        the surface), so `fast` takes none. Measurements: `python -m eval.bench recipes`."""
+        base = dict(num_init=10_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=100_000,
+                    num_samples=100_000, steps_phase1=20, steps_phase2=10, lr=3e-4, update_bound=3e-4,
+                    train_phase1=("points",), k_max=16, lambda_weight=0.0, real_ramp_steps=0,
+                    freeze_phase2=(0, 5), save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
         """Seconds, for tests and the CLI smoke run: 1000 seeds and their poles (~2.5K points), 2 + 15 steps
         at a tenth of the paper's lr, 4K target points and samples."""
@@ -164,7 +186,7 @@ class PointCloudConfig:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "PointCloudConfig":
-        """`paper`, `fast` or `tiny`."""
+        """`paper`, `fast`, `noisy` or `tiny`."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
         return getattr(cls, name)(**overrides)
@@ -180,7 +202,24 @@ class PointCloudConfig:
                           grad_clip=self.grad_clip)
 
 
-PRESETS = ("paper", "fast", "tiny")
+PRESETS = ("paper", "fast", "noisy", "tiny")
+#: Per preset: (whether it takes gradient steps on positions and weights, how it differs from the paper).
+#: Reports print these beside every DMesh row.
+RECIPES = {
+    "paper": (True, "the published recipe: 10K seeds + all their Voronoi vertices, 1000 phase-1 steps (positions, "
+                    "weights, reals) + 500 phase-2 steps (reals), lr 3e-4, 100K target points and samples, K <= 100. "
+                    "Differs: the 8 corners of [-1.25, 1.25]^3 are added as imaginary points, the mesh is the "
+                    "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
+                    "component; CPU kernels."),
+    "fast": (False, "an initialisation, no phase-1 step: 40K seeds + their poles (not all Voronoi vertices), faces "
+                    "far from the input carved, then 10 phase-2 steps (reals only) on 50K target points and "
+                    "samples, K <= 16, one-sheet extraction. Differs: no position or weight optimisation, 4x the "
+                    "seeds, 10 of the paper's 1500 steps."),
+    "noisy": (True, "not in the paper, for noisy scans: the fast start at 10K seeds, 20 phase-1 steps moving only "
+                    "the positions at lr 3e-4 on 100K target points and samples, then the fast preset's 10 phase-2 "
+                    "steps. On clean input it is several times worse than `fast`."),
+    "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
+}
 #: Implementations of the step's kernels (the expected Chamfer and the Delta recomputation).
 KERNELS = ("native", "reference")
 
@@ -225,8 +264,9 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     """Reconstructs a mesh from a point cloud with DMesh.
 
     Args:
-        points: (G, 3) float input points (any frame); normals: (G, 3) float or None (used only when
-            `config.lambda_normal` > 0).
+        points: (G, 3) float input points (any frame); normals: (G, 3) float or None (the normal term when
+            `config.lambda_normal` > 0; with `config.orient`, the output's inside / outside vote and the side
+            its open sheets face).
         config: `PointCloudConfig` (None: the paper preset).
         callback: called after every step with {"phase", "step", "steps", "loss", "cd_gt", "cd_ours", "k",
             "faces" (current mesh faces), "candidates" (scored faces), "samples", "seconds"}; also with
@@ -275,7 +315,7 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     info = {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
             "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": loop.fingerprint}
     phase, start = 1, 0
-    opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config())
+    opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
     resumed = loop.resume()
     if resumed is not None:
         phase, start = resumed["phase"], resumed["step"]
@@ -283,7 +323,7 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
             phase, start = 2, cfg.steps_phase2
         with torch.no_grad():
             dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
-        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), TRAIN_ALL if phase == 1 else ("reals",))
+        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1 if phase == 1 else ("reals",))
         if resumed.get("optimizer") is not None:
             opt.load_state_dict(resumed["optimizer"])
         chamfer.k = int(resumed["k"])
@@ -349,86 +389,17 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     # ------------------------------------------------------------------------------------- extraction
     loop.stage("extract")
     with clock("extract"):
-        mesh = extract(dm, cfg.threshold, pd, cfg.extraction)
-    if cfg.orient:
-        with clock("orient"):
-            orient_faces(mesh)
+        # With `orient`: the faces' closed, outward surface (dmesh.extract.surface); input normals, when
+        # given, vote inside/outside and turn the open sheets.
+        mesh = extract(dm, cfg.threshold, pd, cfg.extraction, orient=cfg.orient,
+                       normals=None if nrm_in is None else (pts, nrm_in),
+                       config=SurfaceConfig(seed=cfg.seed, workers=cfg.workers))
+    if "surface" in mesh.metadata:
+        info["surface"] = mesh.metadata.pop("surface")
     mesh.vertices = np.asarray(mesh.vertices) / scale + center
     info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
                  "hidden_points": int(pd.hidden.sum()), "final_k": int(chamfer.k)})
     return PointCloudResult(mesh, dm, center, scale, loop.finish(), loop.history, info)
-
-
-def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all"):
-    """Faces of the WDT (`pd`, or a fresh one) whose 3 vertices have real value > threshold, filtered by
-    `mode` (`dmesh.extract.mesh_faces`), as a trimesh over the used points (float64, the DMesh's frame)."""
-    import trimesh
-
-    from dmesh.extract import mesh_faces
-
-    pd = pd if pd is not None else dm.power_diagram()
-    faces = pd.faces[mesh_faces(pd, dm.reals.detach().numpy() > threshold, mode)].astype(np.int64)
-    mesh = trimesh.Trimesh(dm.points.detach().double().numpy(), faces, process=False)
-    mesh.remove_unreferenced_vertices()
-    return mesh
-
-
-def orient_faces(mesh) -> None:
-    """Consistent winding per connected component (in place), outward for closed components.
-
-    A breadth-first walk over faces sharing a manifold edge flips each face to traverse the shared edge
-    opposite to its already-oriented neighbour; then each component whose signed volume is negative
-    (closed components) is flipped as a whole. Non-manifold edges do not propagate orientation.
-    """
-    faces = np.asarray(mesh.faces, dtype=np.int64).copy()
-    nf = len(faces)
-    if nf == 0:
-        return
-    # Directed half-edges of every face.
-    he = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1).reshape(-1, 2)
-    key = np.sort(he, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    manifold = counts[inv] == 2
-    order = np.argsort(inv, kind="stable")
-    # Pair the two half-edges of each manifold edge.
-    ids = order[manifold[order]]
-    pairs = ids.reshape(-1, 2)
-    fa, fb = pairs[:, 0] // 3, pairs[:, 1] // 3
-    # Same direction on both faces means one of them must flip relative to the other.
-    same = (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)
-    adj = [[] for _ in range(nf)]
-    for a, b, s in zip(fa.tolist(), fb.tolist(), same.tolist()):
-        if a != b:
-            adj[a].append((b, s))
-            adj[b].append((a, s))
-    flip = np.zeros(nf, bool)
-    seen = np.zeros(nf, bool)
-    comp = np.full(nf, -1)
-    ncomp = 0
-    for root in range(nf):
-        if seen[root]:
-            continue
-        seen[root] = True
-        comp[root] = ncomp
-        stack = [root]
-        while stack:
-            f = stack.pop()
-            for g, s in adj[f]:
-                if not seen[g]:
-                    seen[g] = True
-                    comp[g] = ncomp
-                    flip[g] = flip[f] ^ s
-                    stack.append(g)
-        ncomp += 1
-    faces[flip] = faces[flip][:, ::-1]
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    t = v[faces]
-    vol = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2]))
-    comp_vol = np.bincount(comp, weights=vol, minlength=ncomp)
-    neg = comp_vol[comp] < 0
-    faces[neg] = faces[neg][:, ::-1]
-    mesh.faces = faces
 
 
 __all__ = ["PointCloudConfig", "PointCloudResult", "PRESETS", "reconstruct", "check_points", "extract",

@@ -11,7 +11,7 @@ import dataclasses
 from pathlib import Path
 
 #: The presets of `dmesh.recon.multiview.PRESETS` (a test checks they agree), listed without importing torch.
-PRESET_NAMES = ("fast", "paper", "depth", "tiny")
+PRESET_NAMES = ("fast", "paper", "depth", "refine", "tiny")
 
 
 def read_capture(directory: str | Path):

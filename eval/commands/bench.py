@@ -25,9 +25,13 @@ def add_sweep_arguments(p: argparse.ArgumentParser, work_default: str) -> None:
     p.add_argument("--work", default=work_default,
                    help=f"work folder: input cache, meshes, store (default: {work_default})")
     p.add_argument("--db", help="SQLite results store (default: WORK/results.sqlite)")
-    p.add_argument("--jobs", type=int, default=1, help="concurrent runs (default: 1)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="concurrent runs: worker processes, or Ray tasks in flight (default: 1)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool (default) or Ray tasks (needs pip install -e .[ray])")
+    p.add_argument("--ray-address", metavar="HOST:PORT",
+                   help="with --executor ray: join the running Ray cluster whose head is there (or auto: the "
+                        "one started on this machine); default: $RAY_ADDRESS, else a local Ray of --jobs CPUs")
     p.add_argument("--timeout", type=float, help="per-run wall-clock limit in seconds (default: the sweep's)")
     p.add_argument("--retry-failed", action="store_true", help="rerun runs stored as failed")
 
@@ -117,7 +121,7 @@ def run(args) -> int:
 
     sweep = build_sweep(args)
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
-                          retry_failed=args.retry_failed)
+                          retry_failed=args.retry_failed, ray_address=args.ray_address)
     check_work(args.work, runner.db_path)
     if args.report:
         from eval.cli import check_output_dir

@@ -50,7 +50,7 @@ def run(args) -> int:
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "cameras.json").exists())):
         raise ValueError(f"{out}: exists and is not a capture folder; choose another -o")
 
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, orient=True)  # an inside-out closed mesh is flipped before rendering
     transform = None
     if not args.no_normalize:
         mesh, transform = normalize(mesh, radius=1.0)

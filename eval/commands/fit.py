@@ -30,7 +30,7 @@ def fit_mesh(path: str, preset: str = "fast", steps: int | None = None, seed: in
     from datasets.normalize import normalize
     from dmesh.recon.mesh_to_dmesh import PRESETS, mesh_to_dmesh
 
-    mesh = load_mesh(path)
+    mesh = load_mesh(path, orient=True)
     if len(mesh.faces) == 0:
         raise ValueError(f"{path}: the mesh has no faces")
     mesh, transform = normalize(mesh, radius=0.8)

@@ -1,7 +1,9 @@
 """`dmesh metrics PRED GT`: every metric of a predicted mesh against its ground truth.
 
 Both meshes are mapped by the GT's normalisation (vertex mean 0, max vertex norm 1) before measuring; see
-`eval.metrics` for the definitions, frames and units.
+`eval.metrics` for the definitions, frames and units. The GT (never the prediction) is oriented at load
+(`datasets.meshes.orient_outward`): an inside-out closed GT file is flipped outward with a warning, and a GT
+that cannot be oriented gets `gt_orientable: false` and NaN (null) oriented figures.
 """
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import json
 import math
 
 NAME = "metrics"
-HELP = "compare a predicted mesh with its ground truth (Chamfer, F-score, normals, mesh statistics)"
+HELP = "compare a predicted mesh with its ground truth (Chamfer, F-score, normals, orientation, topology)"
 
 #: Keys printed with a x1e-3 column (GT-radius units).
 _MILLI = ("cd_l1", "cd_l1_gt_to_pred", "cd_l1_pred_to_gt", "cd_p2s", "cd_p2s_gt_to_pred", "cd_p2s_pred_to_gt")
@@ -32,6 +34,8 @@ def _jsonable(v):
 
 
 def _fmt(v) -> str:
+    if v is None:
+        return "n/a"
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, int):
@@ -49,7 +53,7 @@ def run(args) -> int:
     check_points("--samples", args.samples)
     check_seed("--seed", args.seed)
     pred = load_mesh(args.pred)
-    gt = load_mesh(args.gt)
+    gt = load_mesh(args.gt, orient=True)
     m = compute_metrics(pred, gt, n=args.samples, seed=args.seed,
                         self_intersections=not args.no_self_intersections)
     if args.json:
@@ -64,4 +68,6 @@ def run(args) -> int:
         print(f"{k:<{width}}  {_fmt(v):>12}  {milli}")
     print(f"frame: GT vertex mean 0, max vertex norm 1; {args.samples} samples per mesh; "
           "cd_l2_ndc, f_score (at 0.003) and normal_consistency in the NDC frame (GT bbox diagonal 1)")
+    if not m["gt_orientable"]:
+        print(f"the GT is {m['gt_orientation'].replace('_', '-')}: only the unsigned normal consistency applies")
     return 0

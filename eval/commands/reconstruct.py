@@ -27,7 +27,7 @@ MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
 
 #: The presets of `dmesh.recon.pointcloud.PRESETS`, listed here so building the parser imports no torch
 #: (a test checks the two agree).
-PRESET_NAMES = ("fast", "paper", "tiny")
+PRESET_NAMES = ("fast", "paper", "noisy", "tiny")
 
 
 def add_arguments(p):
@@ -39,8 +39,9 @@ def add_arguments(p):
 
     names = PRESET_NAMES + tuple(n for n in MULTIVIEW_PRESETS if n not in PRESET_NAMES)
     p.add_argument("--preset", choices=names, default="fast",
-                   help="settings preset (default: fast; depth: multiview only, DMesh's point-cloud fit to the "
-                   "lifted depth pixels)")
+                   help="settings preset (default: fast; noisy: point clouds only, for noisy scans; depth and "
+                   "refine: multiview only, DMesh's point-cloud fit to the lifted depth pixels, refine with "
+                   "image-loss steps after it)")
     p.add_argument("--normals", action="store_true",
                    help="use the input normals in the loss (Eq. 13; lambda_normal 1e-3 unless --set)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (default: 0)")
@@ -139,7 +140,7 @@ def _sample_mesh(path: Path, samples: int, seed: int):
 
     if samples < 1:
         raise ValueError(f"--samples must be >= 1, got {samples}")
-    pts, nrm = sample_points(load_mesh(path), samples, seed=seed)
+    pts, nrm = sample_points(load_mesh(path, orient=True), samples, seed=seed)
     return pts.astype(np.float64), nrm.astype(np.float64)
 
 

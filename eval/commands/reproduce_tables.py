@@ -5,7 +5,8 @@ reconstruction by class) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh).
 that are not registered (yet) are left out with a warning, and a sweep left without runs is skipped; methods
 named by `--methods` must exist. `--inputs` selects among each sweep's own input kinds; the other flags apply
 to every sweep. Resumable: finished runs are read from the store, so a second run with
-nothing changed only regenerates the reports (renders are cached too).
+nothing changed only regenerates the reports (renders are cached too). After the sweeps the store's compact
+export is written to OUT/store/runs.jsonl.gz (`eval.export`), which `--report-only` reads when there is no store.
 """
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ def add_arguments(p) -> None:
     p.add_argument("--no-renders", action="store_true", help="skip the rendered figures (tables and plots only)")
     p.add_argument("--report-only", action="store_true",
                    help="run nothing: regenerate the reports from every run in the store (the latest of each "
-                        "configuration, whatever code version produced it)")
+                        "configuration, whatever code version produced it), or without a store from its "
+                        "committed export OUT/store/runs.jsonl.gz (dmesh export-store)")
 
 
 def _runnable(sweep, explicit_methods: bool):
@@ -64,14 +66,16 @@ def run(args) -> int:
 
     check_output_dir(args.out, "-o")
     if args.report_only:
+        from eval.export import keep_tables, report_store
+
         db = Path(args.db) if args.db else RunnerConfig(work=args.work).db_path
         check_work(args.work, db)
-        if not db.is_file():
-            raise FileNotFoundError(f"no results store at {db}: run `dmesh reproduce-tables` without "
-                                    f"--report-only (or `dmesh bench`) first, or give --db / --work")
-        paths = write_reports(db, args.out, work=Path(args.work), title="DMesh harness: stored runs",
-                              renders=not args.no_renders, keys=None)
-        print(f"wrote {len(paths)} report files from {db}; open {Path(args.out) / 'index.html'}")
+        # No SQLite store (a fresh clone): the committed export OUT/store/runs.jsonl.gz; no table goes empty.
+        with report_store(db, args.out, args.work) as source, keep_tables(args.out):
+            paths = write_reports(source, args.out, work=Path(args.work), title="DMesh harness: stored runs",
+                                  renders=not args.no_renders, keys=None)
+        print(f"wrote {len(paths)} report files from {db if db.is_file() else 'the store export'}; "
+              f"open {Path(args.out) / 'index.html'}")
         return 0
 
     # --inputs selects among each sweep's own input kinds (Table 1 keeps its mesh input and frame).
@@ -94,7 +98,7 @@ def run(args) -> int:
     if not sweeps:
         raise ValueError("no sweep has runs: check --methods / --inputs and the registered methods")
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
-                          retry_failed=args.retry_failed)
+                          retry_failed=args.retry_failed, ray_address=args.ray_address)
     check_work(args.work, runner.db_path)
     keys, kinds = [], []
     for sweep in sweeps:
@@ -107,5 +111,8 @@ def run(args) -> int:
     title = "DMesh harness: " + ", ".join(s.name for s in sweeps)
     paths = write_reports(runner.db_path, args.out, work=Path(args.work), title=title,
                           renders=not args.no_renders, keys=keys)
-    print(f"wrote {len(paths)} report files; open {Path(args.out) / 'index.html'}")
+    from eval.export import EXPORT_NAME, export_store
+
+    n = export_store(runner.db_path, Path(args.out) / EXPORT_NAME)  # what --report-only reads on a clone
+    print(f"wrote {len(paths)} report files and the store export ({n} runs); open {Path(args.out) / 'index.html'}")
     return 0

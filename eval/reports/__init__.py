@@ -56,6 +56,8 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     """
     from eval.reports import figures, tables
     from eval.reports.html import table_html, write_index
+    from eval.reports.curves import curve_figure, curve_runs
+    from eval.reports.recipes import recipe_markdown, recipe_rows
     from eval.store import Store
 
     db = Path(db)
@@ -66,9 +68,11 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     with Store(db) as store:
         df_all = select_runs(store.dataframe(), keys)
     from eval.reports.ablation import KNOBS, ablation_rows, is_ablation, write_ablations
+    from eval.reports.robustness import has_runs, is_robustness, write_robustness
 
-    # Table 2 compares methods at their sweep settings; the regulariser ablations get their own tables.
-    df = df_all[~is_ablation(df_all)] if len(df_all) else df_all
+    # Table 2 compares methods at their sweep settings; the regulariser ablations and the runs on corrupted
+    # inputs (robustness sweeps) get their own tables.
+    df = df_all[~is_ablation(df_all) & ~is_robustness(df_all)] if len(df_all) else df_all
     counts = df["status"].value_counts().to_dict() if len(df) else {}
     written: list[Path] = []
     sections: list[tuple[str, str]] = []
@@ -78,6 +82,8 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         n_samples = _first_setting(sub, "metric_samples")
         md, csv = tables.write_table2(df, out, kind, n_samples)
         written += [md, csv]
+        recipes = recipe_rows(df, kind)
+        _append_markdown(md, recipe_markdown(recipes))
         rows = tables.table2(df, kind)
         label = {"pointcloud": "point cloud", "multiview": "multi-view"}[kind]
         body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV (raw units)</a></p>",
@@ -97,6 +103,17 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
             if bars:
                 written.append(bars)
                 body.append(f"<img src='figures/{bars.name}' alt='bar plots {label}'>")
+            curves = curve_figure(curve_runs(df, kind), figdir / f"curves_{kind}.png",
+                                  f"DMesh runs with gradient steps, {label} input: CD p2s and loss against the step")
+            if curves:
+                written.append(curves)
+                _append_markdown(md, "## DMesh curves\n\nCD p2s (the harness monitor, 20K samples per side) and "
+                                     "loss against the step, one shape per class and configuration:\n\n"
+                                     f"![curves](figures/{curves.name})\n")
+                body.append(f"<img src='figures/{curves.name}' alt='curves {label}'>")
+            if recipes:
+                body.append("<h3>DMesh recipes</h3>" + table_html(
+                    recipes, [("method", "row", None), ("kind", "made by", None), ("recipe", "recipe", None)]))
             failures = sub[sub["status"] == "failed"] if len(sub) else sub
             if len(failures):
                 frows = [{"method": tables.method_label(r["method"], r["config_label"]), "shape": r["shape"],
@@ -133,6 +150,10 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
                                     ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)],
                                    paper_cols=("paper_cd", "paper_faces")))
     sections.append(("Ablations: weight and quality regularisers (paper Tables 4 and 5)", "\n".join(body)))
+    if has_runs(df_all):
+        files, body = write_robustness(df_all, out, db, work, renders=renders)
+        written += files
+        sections.append(("Robustness: corrupted inputs, simulated scans, matched budgets", body))
 
     if renders and len(df):
         figs = render_figures(df, db, work, figdir, progress=progress)
@@ -179,6 +200,7 @@ def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> lis
             ref = ShapeRef(id=shape, kind="file", source="", gt_hash=first["gt_hash"] or "")
             radius = float(settings.get("radius", 1.0))
             gt = shape_dir(work, ref, radius) / "gt.ply"
+            missing = not gt.is_file()  # GT or a done run's mesh absent (e.g. a clone with the store export only)
             panels = []
             panels.append(("ground truth", figures.cached_render(gt, cache) if gt.is_file()
                            else figures._placeholder("GT missing")))
@@ -200,14 +222,29 @@ def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> lis
                     cap = f"{label}\nCD p2s {tables.fmt(float(cd) * 1e3)}e-3" if cd is not None and cd == cd else label
                     panels.append((cap, figures.cached_render(mp, cache)))
                 else:
+                    missing = missing or r["status"] == "done"
                     err = (tables.text(r.get("error")) or r["status"])[:34]
                     panels.append((f"{label}\n{r['status']}: {err}", figures._placeholder(r["status"])))
             name = f"renders_{kind}_{_safe(shape)}.png"
             title = f"{shape} ({category}), {kind} input, seed {int(first['seed'])}"
+            if missing and (figdir / name).is_file():  # keep the figure drawn from the meshes, not placeholders
+                out.append((title, figdir / name))
+                continue
             out.append((title, figures.side_by_side(panels, figdir / name, title, cache=cache)))
         except Exception as exc:  # noqa: BLE001 - a figure that cannot be drawn must not lose the tables
             log.warning("renders for %s / %s skipped: %s", kind, shape, exc)
     return out
+
+
+def _append_markdown(path: Path, text: str) -> None:
+    """Appends `text` as a section of the Markdown report `path` (rewritten atomically)."""
+    if not text:
+        return
+    from eval.io import atomic_path
+
+    body = path.read_text()
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(body.rstrip("\n") + "\n\n\n" + text)
 
 
 def _safe(name: str) -> str:

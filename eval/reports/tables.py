@@ -1,4 +1,5 @@
-"""Tables from the results store: the paper's Table 2 (CD and time by class) and Table 1 (RE / FP).
+"""Tables from the results store: the paper's Table 2 (CD and time by class), Table 1 (RE / FP), and beside
+each a mesh-quality table (orientation against the GT, watertightness, manifoldness, topology).
 
 All tables are computed from `Store.dataframe()` (one row per run) and written as Markdown + CSV. CSV files
 keep raw units (Chamfer distances as plain distances in the normalised GT frame; times in seconds; RE / FP as
@@ -29,7 +30,16 @@ CD_NOTE = ("`cd_p2s`: point-to-surface Chamfer L1 (mean distance from samples of
            "a few 1e-3. Markdown shows both x1e-3; the CSV holds raw distances.")
 #: Extra per-class means shown when the metrics provide them: (column, candidate metric names).
 OPTIONAL_METRICS = (("fscore", ("fscore", "f_score", "f1", "fscore_0.003")),
-                    ("normal_consistency", ("normal_consistency", "nc")))
+                    ("normal_consistency", ("normal_consistency", "nc")),
+                    ("normal_consistency_oriented", ("normal_consistency_oriented",)))
+QUALITY_NOTE = ("Mesh quality (`eval.metrics.compute_metrics`): *oriented NC* is the signed normal consistency "
+                "(1: every normal agrees with the GT's at the closest point, -1: inside out; the unsigned NC "
+                "ignores orientation); *oriented* is the area-weighted share of faces whose normal points the "
+                "GT's way at the GT point closest to the face centre; both are blank for a GT that cannot be "
+                "oriented (a Moebius strip). Inside-out closed GTs are flipped outward before use. "
+                "*watertight*: every edge has exactly two faces; *NM*: non-manifold edges (more than two "
+                "faces) and vertices (more than one fan of faces); *topology = GT*: same number of connected "
+                "components and same genus as the GT; *self-int.*: faces crossing another face.")
 
 
 def text(value) -> str:
@@ -80,8 +90,9 @@ def table2(df, input_kind: str) -> list[dict]:
         input_kind: "pointcloud" or "multiview".
     Returns:
         rows with method, category, n (done runs), failed, cd_p2s, cd_l1, time_s (means over done runs; None
-        if none), optional fscore / normal_consistency means, paper_cd_l1 and paper_time_s (None when the
-        paper has no row for the method). Ordered by method, then closed / open / mixed.
+        if none), optional fscore / normal_consistency / normal_consistency_oriented means, the
+        `quality_summary` keys, paper_cd_l1 and paper_time_s (None when the paper has no row for the method).
+        Ordered by method, then closed / open / mixed.
     """
     if df is None or len(df) == 0:
         return []
@@ -100,6 +111,7 @@ def table2(df, input_kind: str) -> list[dict]:
                 s = _metric(done, names)
                 if s is not None:
                     row[col] = _mean_series(s)
+            row.update(quality_summary(done))
             row["paper_cd_l1"] = paper.get(cat) if paper else None
             row["paper_time_s"] = paper.get("time_s") if paper else None
             rows.append(row)
@@ -117,8 +129,104 @@ def _mean_series(s):
     return float(s.mean()) if len(s) else None
 
 
+def _share(flags) -> float | None:
+    """Fraction of True among the known (non-missing) flags; None when none is known."""
+    known = [bool(x) for x in flags if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return sum(known) / len(known) if known else None
+
+
+def quality_summary(done) -> dict:
+    """Mesh-quality aggregates of some done runs (DataFrame rows with `compute_metrics` columns); None where
+    the runs do not carry the figure (rows stored before it existed).
+
+    Returns:
+        {"oriented_fraction": mean, "oriented_fraction_min": min (the issue's target is on every run),
+        "watertight_share": fraction of runs that are watertight, "no_nm_edges_share": fraction with no
+        non-manifold edge, "non_manifold_edges", "non_manifold_vertices", "boundary_edges": means,
+        "topology_match_share": fraction whose component count and genus equal the GT's,
+        "self_intersecting_faces": mean over the runs where it was counted}.
+    """
+    def col(name):
+        return done[name] if name in done.columns else None
+
+    def mean(name, keep=lambda s: s):
+        s = col(name)
+        return _mean_series(keep(s.dropna().astype(float))) if s is not None else None
+
+    orient = col("oriented_fraction")
+    orient = orient.dropna().astype(float) if orient is not None else None
+    out = {"oriented_fraction": _mean_series(orient) if orient is not None else None,
+           "oriented_fraction_min": float(orient.min()) if orient is not None and len(orient) else None,
+           "watertight_share": _share(col("watertight")) if col("watertight") is not None else None,
+           "no_nm_edges_share": None, "non_manifold_edges": mean("non_manifold_edges"),
+           "non_manifold_vertices": mean("non_manifold_vertices"), "boundary_edges": mean("boundary_edges"),
+           "topology_match_share": None,
+           "self_intersecting_faces": mean("self_intersecting_faces", lambda s: s[s >= 0])}
+    nm = col("non_manifold_edges")
+    if nm is not None:
+        out["no_nm_edges_share"] = _share([None if v != v else v == 0 for v in nm.astype(float)])
+    if all(c in done.columns for c in ("components", "gt_components", "genus", "gt_genus")):
+        out["topology_match_share"] = _share([_topology_match(r) for _, r in done.iterrows()])
+    return out
+
+
+def _topology_match(r) -> bool | None:
+    """Whether a run's component count and genus equal its GT's; None when the GT's are unknown."""
+    gc, gg = num(r.get("gt_components")), num(r.get("gt_genus"))
+    if gc is None:
+        return None
+    c, g = num(r.get("components")), num(r.get("genus"))
+    return c == gc and g is not None and g == gg
+
+
+def quality_row(r) -> dict:
+    """Mesh-quality figures of one run (a store row): raw values for CSV, and "a (GT b)" text cells.
+
+    Returns:
+        {"nc_oriented", "oriented_fraction", "watertight" (True / False / None), "boundary_edges",
+        "non_manifold_edges", "non_manifold_vertices", "components", "gt_components", "genus", "gt_genus",
+        "self_intersecting_faces" (None when not counted), "components_vs_gt", "genus_vs_gt" (text cells:
+        "3 (GT 1)"; genus "-" when undefined: non-manifold or non-orientable), "watertight_text"}.
+    """
+    w = r.get("watertight")
+    w = None if w is None or (isinstance(w, float) and math.isnan(w)) else bool(w)
+    si = num(r.get("self_intersecting_faces"))
+    out = {"nc_oriented": num(r.get("normal_consistency_oriented")),
+           "oriented_fraction": num(r.get("oriented_fraction")), "watertight": w, "watertight_text": "" if w is None else ("yes" if w else "no"),
+           "boundary_edges": num(r.get("boundary_edges")), "non_manifold_edges": num(r.get("non_manifold_edges")),
+           "non_manifold_vertices": num(r.get("non_manifold_vertices")),
+           "self_intersecting_faces": si if si is not None and si >= 0 else None}
+    for k in ("components", "genus"):
+        mine, gt = num(r.get(k)), num(r.get(f"gt_{k}"))
+        out[k], out[f"gt_{k}"] = mine, gt
+        cell_ = "" if mine is None and gt is None else ("-" if mine is None else str(int(mine)))
+        if gt is not None or (k == "genus" and num(r.get("gt_components")) is not None):
+            cell_ += f" (GT {'-' if gt is None else int(gt)})"
+        out[f"{k}_vs_gt"] = cell_
+    return out
+
+
+#: Columns of a per-run mesh-quality table (`quality_row` keys), for `markdown`.
+QUALITY_RUN_COLUMNS = [("nc_oriented", "oriented NC", 1), ("oriented_fraction", "oriented (%)", 100, ".1f"),
+                       ("watertight_text", "watertight", None), ("boundary_edges", "boundary edges", 1),
+                       ("non_manifold_edges", "NM edges", 1), ("non_manifold_vertices", "NM vertices", 1),
+                       ("components_vs_gt", "components", None), ("genus_vs_gt", "genus", None),
+                       ("self_intersecting_faces", "self-int. faces", 1)]
+#: Columns of a per-class mesh-quality table (`quality_summary` keys).
+QUALITY_SUMMARY_COLUMNS = [("normal_consistency_oriented", "oriented NC", 1),
+                           ("oriented_fraction", "oriented (%)", 100, ".1f"),
+                           ("oriented_fraction_min", "oriented min (%)", 100, ".1f"),
+                           ("watertight_share", "watertight (%)", 100, ".0f"),
+                           ("no_nm_edges_share", "no NM edges (%)", 100, ".0f"),
+                           ("non_manifold_edges", "NM edges", 1), ("non_manifold_vertices", "NM vertices", 1),
+                           ("boundary_edges", "boundary edges", 1),
+                           ("topology_match_share", "topology = GT (%)", 100, ".0f"),
+                           ("self_intersecting_faces", "self-int. faces", 1)]
+
+
 def per_shape(df, input_kind: str) -> list[dict]:
-    """One row per run of `input_kind` (method, shape, class, seed, status, cd_p2s, cd_l1, time_s, error)."""
+    """One row per run of `input_kind` (method, shape, class, seed, status, cd_p2s, cd_l1, time_s, faces,
+    error, and for done runs the `quality_row` keys)."""
     if df is None or len(df) == 0:
         return []
     sub = df[df["input_kind"] == input_kind].sort_values(["category", "shape", "method", "config_label", "seed"])
@@ -128,7 +236,8 @@ def per_shape(df, input_kind: str) -> list[dict]:
                     "shape": r["shape"],
                     "category": r["category"], "seed": int(r["seed"]), "status": r["status"],
                     "cd_p2s": num(r.get("cd_p2s")), "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")),
-                    "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error"))})
+                    "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error")),
+                    **(quality_row(r) if r["status"] == "done" else {})})
     return out
 
 
@@ -177,7 +286,10 @@ def markdown(rows: list[dict], columns: list[tuple]) -> str:
 
 
 TABLE2_CSV_COLUMNS = ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "time_s", "fscore",
-                      "normal_consistency", "paper_cd_l1", "paper_time_s"]
+                      "normal_consistency", "paper_cd_l1", "paper_time_s", "normal_consistency_oriented",
+                      "oriented_fraction", "oriented_fraction_min", "watertight_share", "no_nm_edges_share",
+                      "non_manifold_edges", "non_manifold_vertices", "boundary_edges", "topology_match_share",
+                      "self_intersecting_faces"]
 
 
 def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_samples: int | None,
@@ -189,6 +301,8 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
         cols.append(("fscore", "F-score", 1))
     if any("normal_consistency" in r for r in rows):
         cols.append(("normal_consistency", "NC", 1))
+    if any(r.get("normal_consistency_oriented") is not None for r in rows):
+        cols.append(("normal_consistency_oriented", "oriented NC", 1))
     cols += [("paper_cd_l1", "paper CD (x1e-3)", 1e3, ".2f"), ("paper_time_s", "paper time (s)", 1, ".2f")]
     out = [f"# {title or f'Table 2 ({label} input): Chamfer distance and time by class'}", "",
            f"Input: {label}. {FRAME_NOTE} Means over the successful runs of each class (n), with the number of "
@@ -197,6 +311,9 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
            "wall time in seconds on this machine (metrics excluded).", ""]
     if rows:
         out.append(markdown(rows, cols))
+        out += ["", "## Mesh quality by class", "", QUALITY_NOTE, "",
+                markdown(rows, [("method", "method", None), ("category", "class", None), ("n", "n", 1)]
+                         + QUALITY_SUMMARY_COLUMNS)]
     else:
         out.append(f"_No {label} runs in the store yet._\n")
     paper = paper_numbers.TABLE2.get(input_kind)
@@ -208,12 +325,18 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
                 markdown(prow, [("method", "method", None), ("closed", "closed", 1e3, ".2f"),
                                 ("open", "open", 1e3, ".2f"), ("mixed", "mixed", 1e3, ".2f"),
                                 ("time_s", "time (s)", 1, ".2f")])]
+        out += [f"\nNote: {note}" for note in paper_numbers.TABLE2_NOTES.get(input_kind, ())]
     if details:
         out += ["", "## Runs", "",
                 markdown(details, [("method", "method", None), ("shape", "shape", None),
                                    ("category", "class", None), ("seed", "seed", 1), ("status", "status", None),
                                    ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3),
                                    ("time_s", "time (s)", 1), ("faces", "faces", 1), ("error", "error", None)])]
+        done = [d for d in details if d["status"] == "done"]
+        if done:
+            out += ["", "## Runs: mesh quality", "",
+                    markdown(done, [("method", "method", None), ("shape", "shape", None), ("seed", "seed", 1)]
+                             + QUALITY_RUN_COLUMNS)]
     out += ["", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
     return "\n".join(out)
 
@@ -258,6 +381,18 @@ def table1(df) -> list[dict]:
     return sorted(rows, key=lambda x: (x["shape"], x["method"]))
 
 
+def _table1_quality(df) -> list[dict]:
+    """`quality_row` of each done run in Table 1 (those with RE / FP), in Table 1's order."""
+    if df is None or len(df) == 0:
+        return []
+    rows = []
+    for _, r in df[df["status"] == "done"].iterrows():
+        if any(num(r.get(n)) is not None for n in _RE_NAMES):
+            rows.append({"shape": r["shape"], "method": method_label(r["method"], r["config_label"]),
+                         **quality_row(r)})
+    return sorted(rows, key=lambda x: (x["shape"], x["method"]))
+
+
 def write_table1(df, out: str | Path) -> tuple[Path, Path]:
     """Writes `table1.md` and `table1.csv` (RE / FP of mesh-to-DMesh runs) under `out`."""
     out = Path(out)
@@ -273,6 +408,10 @@ def write_table1(df, out: str | Path) -> tuple[Path, Path]:
                                   ("paper_RE", "paper RE (%)", 100, ".2f"), ("paper_FP", "paper FP (%)", 100, ".2f")]))
     else:
         md.append("_No mesh-to-DMesh runs in the store yet._\n")
+    quality = _table1_quality(df)
+    if quality:
+        md += ["", "## Mesh quality", "", QUALITY_NOTE, "",
+               markdown(quality, [("shape", "shape", None), ("method", "method", None)] + QUALITY_RUN_COLUMNS)]
     prow = [{"shape": k, **v} for k, v in paper_numbers.TABLE1.items()]
     md += ["", "## Published: the paper's Table 1 (20K steps, Stanford models)", "",
            markdown(prow, [("shape", "model", None), ("RE", "RE (%)", 100, ".2f"), ("FP", "FP (%)", 100, ".2f")]),

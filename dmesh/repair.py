@@ -1,0 +1,362 @@
+"""Winding, hole filling and non-manifold clean-up of triangle lists (the last steps of `dmesh.extract`).
+
+Letters: V vertices, F faces, E edges, G input points.
+
+Faces are (F, 3) int64 rows of vertex ids into a (V, 3) float64 array. These are written here rather than
+taken from trimesh or pymeshlab: the library depends on neither for them (pymeshlab is a harness extra;
+trimesh's `fill_holes` closes only 3- and 4-edge holes and its winding fix propagates across non-manifold
+edges), and every step must keep the invariants the extraction relies on (no new vertex, no edge used by
+more than two faces, the winding of the closed part untouched).
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def _half_edges(faces: np.ndarray) -> np.ndarray:
+    """(3F, 2) directed edges; row i belongs to face i % F."""
+    f = np.asarray(faces, dtype=np.int64)
+    return np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+
+
+def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique undirected edges (E, 2) (sorted rows), the (3F,) edge id of each half-edge (`_half_edges`
+    order) and the (E,) number of faces on each edge."""
+    he = np.sort(_half_edges(faces), axis=1)
+    if len(he) == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    n = int(he.max()) + 1
+    keys, inverse, counts = np.unique(he[:, 0] * n + he[:, 1], return_inverse=True, return_counts=True)
+    return np.stack([keys // n, keys % n], 1), inverse.reshape(-1), counts
+
+
+def nonmanifold_edges(faces: np.ndarray) -> np.ndarray:
+    """(K, 2) int64 edges shared by more than two faces."""
+    edges, _, counts = edge_table(faces)
+    return edges[counts > 2]
+
+
+def boundary_edge_count(faces: np.ndarray) -> int:
+    """Number of edges with exactly one face."""
+    return int((edge_table(faces)[2] == 1).sum())
+
+
+def corner_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fans of corners: (3F,) vertex of each corner (corner j * F + i is vertex j of face i) and (3F,) fan id.
+
+    Two corners at the same vertex are in one fan when their faces are joined, around that vertex, through
+    edges with exactly two faces. A manifold vertex has one fan; a pinched vertex or the end of an edge
+    with more than two faces has several.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    corner_vertex = f.T.reshape(-1)  # half-edge c (`_half_edges` order) starts at corner c
+    start = np.arange(3 * F)
+    end = (start + F) % (3 * F)  # the half-edge's end corner: vertex j + 1 of the same face
+    _, inverse, counts = edge_table(f)
+    manifold = counts[inverse] == 2
+    order = np.argsort(inverse, kind="stable")
+    pairs = order[manifold[order]].reshape(-1, 2)  # the two half-edges of each manifold edge
+    rows, cols = [], []
+    for x in (start, end):
+        for y in (start, end):
+            a, b = x[pairs[:, 0]], y[pairs[:, 1]]
+            same = corner_vertex[a] == corner_vertex[b]
+            rows.append(a[same])
+            cols.append(b[same])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    _, fan = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(3 * F, 3 * F)),
+                                  directed=False)
+    return corner_vertex, fan.astype(np.int64)
+
+
+def nonmanifold_vertices(faces: np.ndarray) -> np.ndarray:
+    """(K,) int64 vertices whose faces form more than one fan (`corner_fans`): pinched vertices and the
+    ends of non-manifold edges."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, np.int64)
+    corner_vertex, fan = corner_fans(f)
+    key = np.unique(corner_vertex * (3 * len(f)) + fan)  # distinct (vertex, fan) pairs
+    vertices, fans = np.unique(key // (3 * len(f)), return_counts=True)
+    return vertices[fans > 1]
+
+
+def split_fans(faces: np.ndarray, n_vertices: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex split into one copy per fan (`corner_fans`), which makes every vertex manifold and every
+    edge with more than two faces several edges, without moving or dropping anything.
+
+    Args:
+        faces: (F, 3) ints; n_vertices: the vertex count (None: the largest index + 1).
+    Returns:
+        (F, 3) int64 faces over the new vertices and (V',) int64 the original vertex of each new vertex;
+        a vertex's first fan (by lowest corner) keeps its id, the others get ids from `n_vertices` on.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    n = int(f.max()) + 1 if n_vertices is None else int(n_vertices)
+    if len(f) == 0:
+        return f.copy(), np.arange(n)
+    corner_vertex, fan = corner_fans(f)
+    pair, first, inverse = np.unique(corner_vertex * (3 * len(f)) + fan, return_index=True, return_inverse=True)
+    vertex = pair // (3 * len(f))
+    # the pair holding each vertex's lowest corner keeps the vertex id
+    order = np.lexsort((first, vertex))
+    head = np.r_[True, vertex[order][1:] != vertex[order][:-1]]
+    new_id = np.empty(len(pair), np.int64)
+    new_id[order[head]] = vertex[order[head]]
+    new_id[order[~head]] = n + np.arange(int((~head).sum()))
+    source = np.r_[np.arange(n), vertex[order[~head]]]
+    return new_id[inverse.reshape(-1)].reshape(3, -1).T.copy(), source
+
+
+# ------------------------------------------------------------------------------------------------ winding
+
+def winding_components(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Consistent winding over manifold edges: (F,) bool faces to flip, (F,) component ids, count.
+
+    Faces are joined through edges shared by exactly two faces; a spanning forest of that graph (breadth
+    first from one face per component) fixes each face's flip relative to its tree parent: the two must
+    traverse their shared edge in opposite directions. The flips are summed along the tree paths by pointer
+    doubling. A non-orientable component (a Mobius strip) keeps one seam.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    if F == 0:
+        return np.zeros(0, bool), np.zeros(0, np.int64), 0
+    he = _half_edges(f)
+    _, inverse, counts = edge_table(f)
+    manifold = counts[inverse] == 2
+    order = np.argsort(inverse, kind="stable")
+    pairs = order[manifold[order]].reshape(-1, 2)
+    fa, fb = pairs[:, 0] % F, pairs[:, 1] % F
+    same = (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)  # same direction: one of the two must flip
+    # one tree edge per face pair (a pair sharing two edges is folded; its first edge decides)
+    _, first = np.unique(np.stack([np.minimum(fa, fb), np.maximum(fa, fb)], 1), axis=0, return_index=True)
+    first = first[fa[first] != fb[first]]
+    fa, fb, same = fa[first], fb[first], same[first]
+    graph = coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(F, F)).tocsr()
+    n, comp = connected_components(graph, directed=False)
+    roots = np.unique(comp, return_index=True)[1]
+    forest = coo_matrix((np.ones(len(fa) + n), (np.r_[fa, np.full(n, F)], np.r_[fb, roots])),
+                        shape=(F + 1, F + 1))
+    _, parent = breadth_first_order(forest, F, directed=False, return_predecessors=True)
+    parent = parent[:F].astype(np.int64)
+    parent[parent < 0] = F
+    # the same-direction flag of each face's tree edge (pairs are unique, keyed by their sorted ids)
+    pair_key = np.minimum(fa, fb) * F + np.maximum(fa, fb)
+    by_key = np.argsort(pair_key)
+    child = np.flatnonzero(parent < F)
+    tree_key = np.minimum(parent[child], child) * F + np.maximum(parent[child], child)
+    step = np.zeros(F + 1, np.int64)
+    step[child] = same[by_key[np.searchsorted(pair_key[by_key], tree_key)]]
+    nxt = np.r_[parent, F]
+    for _ in range(64):
+        if (nxt == F).all():
+            break
+        step = step + step[nxt]
+        nxt = nxt[nxt]
+    return (step[:F] % 2).astype(bool), comp.astype(np.int64), int(n)
+
+
+def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int = 3, confident: float = 0.5,
+                  workers: int = 1) -> np.ndarray:
+    """(F, 3) int64 faces wound consistently per component, facing the input normals when given.
+
+    Args:
+        vertices: (V, 3) float64; faces: (F, 3) ints.
+        normals: None, or (points (G, 3), normals (G, 3)) float64 oriented input samples in the same frame.
+            A face's agreement is the cosine between its normal and the mean normal of the `k` input points
+            nearest its centroid. Each component (`winding_components`) is turned to the side its faces
+            agree with (mean agreement by area; below `confident` / 2 either way, as without normals); then
+            each face that agrees or disagrees by at least `confident` is turned
+            to agree on its own: where a sheet meets itself at an edge (two layers fused by the
+            extraction), a component can be non-orientable and its seam would fall anywhere; the input
+            normals put it where the layers meet. Faces whose nearest normals cancel (a thin sheet sampled
+            from both sides) follow their component.
+            Without normals, each component is turned so that its signed volume about the origin is
+            positive (outward for a closed component; an open one faces away from the origin, e.g. a cap's
+            convex side when the origin is the object's centre).
+    """
+    f = np.asarray(faces, dtype=np.int64).copy()
+    if len(f) == 0:
+        return f
+    flip, comp, n = winding_components(f)
+    f[flip] = f[flip][:, ::-1]
+    t = np.asarray(vertices, dtype=np.float64)[f]
+    if normals is None or not len(normals[0]):
+        turn = np.bincount(comp, np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])), n) < 0
+        f[turn[comp]] = f[turn[comp]][:, ::-1]
+        return f
+    from scipy.spatial import cKDTree
+
+    cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    area = np.linalg.norm(cross, axis=1)
+    kk = min(k, len(normals[0]))
+    _, j = cKDTree(normals[0]).query(t.mean(1), k=kk, workers=workers)
+    mean = normals[1][j.reshape(len(f), -1)].sum(1) / kk
+    agree = np.einsum("ij,ij->i", cross, mean) / np.maximum(area, 1e-300)
+    vote = np.bincount(comp, agree * area, n) / np.maximum(np.bincount(comp, area, n), 1e-300)
+    volume = np.bincount(comp, np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])), n)
+    turn = np.where(np.abs(vote) >= confident / 2, vote < 0, volume < 0)[comp]
+    agree[turn] = -agree[turn]
+    turn ^= agree <= -confident
+    f[turn] = f[turn][:, ::-1]
+    return f
+
+
+def orient_faces(mesh) -> None:
+    """Consistent winding per connected component of a `trimesh.Trimesh` (in place), outward for closed
+    components (`orient_sheets` without normals). Non-manifold edges do not propagate the winding."""
+    mesh.faces = orient_sheets(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces))
+
+
+# ------------------------------------------------------------------------------------------------ holes
+
+def hole_loops(faces: np.ndarray) -> list[list[int]]:
+    """Simple vertex loops around the holes of consistently wound faces, each in the direction that the
+    faces filling it must traverse (opposite to the faces at its edges). A loop through a vertex twice is
+    split there into two simple loops."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return []
+    he = _half_edges(f)
+    _, inverse, counts = edge_table(f)
+    successors: dict[int, list[int]] = {}
+    for a, b in he[counts[inverse] == 1].tolist():
+        successors.setdefault(b, []).append(a)  # the hole runs along b -> a
+    loops = []
+    for start in sorted(successors):
+        while successors.get(start):
+            path, seen = [start], {start: 0}
+            v = successors[start].pop()
+            while v != start and successors.get(v):
+                if v in seen:  # close the inner loop v ... v and keep v on the path
+                    i = seen[v]
+                    loops.append(path[i:])
+                    for w in path[i + 1:]:
+                        del seen[w]
+                    path = path[: i + 1]
+                else:
+                    seen[v] = len(path)
+                    path.append(v)
+                v = successors[v].pop()
+            if v == start:
+                loops.append(path)
+    return [loop for loop in loops if len(loop) >= 3]
+
+
+def fill_loop(loop: list[int], vertices: np.ndarray, taken: set) -> np.ndarray | None:
+    """(len(loop) - 2, 3) int64 triangles of least total area spanning the polygon `loop` (dynamic
+    programming over its diagonals, as in Barequet and Sharir, "Filling gaps in the boundary of a
+    polyhedron", CAGD 1995), wound along the loop; diagonals in `taken` (sorted vertex pairs of existing
+    edges) are not used. None when no such triangulation exists."""
+    n = len(loop)
+    ids = np.asarray(loop, dtype=np.int64)
+    p = vertices[ids]
+    free = np.ones((n, n), bool)
+    for i in range(n):
+        for j in range(i + 2, n):
+            if not (i == 0 and j == n - 1):
+                free[i, j] = (min(loop[i], loop[j]), max(loop[i], loop[j])) not in taken
+    cost = np.full((n, n), np.inf)
+    split = np.full((n, n), -1, np.int64)
+    cost[np.arange(n - 1), np.arange(1, n)] = 0.0
+    for gap in range(2, n):
+        for i in range(n - gap):
+            j = i + gap
+            if not free[i, j]:
+                continue
+            k = np.arange(i + 1, j)
+            k = k[free[i, k] & free[k, j]]
+            if len(k) == 0:
+                continue
+            area = 0.5 * np.linalg.norm(np.cross(p[k] - p[i], p[j] - p[i]), axis=1)
+            total = cost[i, k] + cost[k, j] + area
+            best = int(np.argmin(total))
+            cost[i, j], split[i, j] = total[best], k[best]
+    if not np.isfinite(cost[0, n - 1]):
+        return None
+    out, stack = [], [(0, n - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j - i >= 2:
+            k = int(split[i, j])
+            out.append((loop[i], loop[k], loop[j]))
+            stack += [(i, k), (k, j)]
+    return np.asarray(out, dtype=np.int64)
+
+
+def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int) -> tuple[np.ndarray, int, int]:
+    """Triangles closing the holes of consistently wound `faces` that have at most `max_edges` edges
+    (`fill_loop`, no new vertex, no edge used by more than two faces).
+
+    Returns:
+        (K, 3) int64 new faces, the number of holes filled, the number left open.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    taken = set(map(tuple, edge_table(f)[0].tolist()))
+    new, filled, left = [], 0, 0
+    for loop in hole_loops(f):
+        tris = fill_loop(loop, vertices, taken) if len(loop) <= max_edges else None
+        if tris is None:
+            left += 1
+            continue
+        new.append(tris)
+        filled += 1
+        taken.update(map(tuple, np.sort(_half_edges(tris), axis=1).tolist()))
+    return (np.concatenate(new) if new else np.zeros((0, 3), np.int64)), filled, left
+
+
+# ------------------------------------------------------------------------------------------------ fins
+
+def faces_on_edges(faces: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """(F,) bool: faces with an edge that is also an edge of `other` (both (., 3) int arrays)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0 or len(other) == 0:
+        return np.zeros(len(f), bool)
+    n = int(max(f.max(), np.max(other))) + 1
+    mine = np.sort(_half_edges(f), axis=1)
+    theirs = np.sort(_half_edges(other), axis=1)
+    hit = np.isin(mine[:, 0] * n + mine[:, 1], theirs[:, 0] * n + theirs[:, 1])
+    return hit.reshape(3, -1).any(0)
+
+
+def drop_crowding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) bool faces to keep: on each edge with more than two faces, the two largest.
+
+    Meant for what `split_fans` leaves: an edge whose faces are joined around both its ends, a sheet folded
+    onto itself; each face dropped leaves a hole of one face.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    keep = np.ones(F, bool)
+    if F == 0:
+        return keep
+    _, inverse, counts = edge_table(f)
+    he = np.flatnonzero(counts[inverse] > 2)
+    if len(he) == 0:
+        return keep
+    area = 0.5 * np.linalg.norm(np.cross(vertices[f[:, 1]] - vertices[f[:, 0]], vertices[f[:, 2]] - vertices[f[:, 0]]),
+                                axis=1)
+    edge, face = inverse[he], he % F
+    order = np.lexsort((face, -area[face], edge))
+    edge, face = edge[order], face[order]
+    first = np.r_[True, edge[1:] != edge[:-1]]
+    rank = np.arange(len(edge)) - np.maximum.accumulate(np.where(first, np.arange(len(edge)), 0))
+    keep[face[rank >= 2]] = False
+    return keep
+
+
+__all__ = ["edge_table", "nonmanifold_edges", "corner_fans", "nonmanifold_vertices", "split_fans", "boundary_edge_count",
+           "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop", "fill_holes",
+           "faces_on_edges", "drop_crowding"]

@@ -1,0 +1,60 @@
+"""Which recipe made each DMesh row: gradient steps or an initialisation, and how it differs from the paper.
+
+The descriptions live beside the presets (`RECIPES` in `dmesh.recon.pointcloud` and `dmesh.recon.multiview`);
+this module matches them to the rows of a report by the run's config label ("preset=paper", or "" for the
+method's default preset, `fast`).
+"""
+from __future__ import annotations
+
+#: The DMesh harness methods with presets, by input kind, and the module whose RECIPES describe them.
+DMESH_METHODS = {"pointcloud": {"dmesh": "dmesh.recon.pointcloud"},
+                 "multiview": {"dmesh_mv": "dmesh.recon.multiview"}}
+#: The preset a DMesh method runs when the config names none (`default_config` of baselines/dmesh_*.py).
+DEFAULT_PRESET = "fast"
+
+
+def _preset(config_label: str) -> tuple[str, str]:
+    """(preset, the other overrides as a label) of a config label such as "preset=paper,lr=1e-05"."""
+    parts = [p for p in str(config_label or "").split(",") if p]
+    preset = next((p.split("=", 1)[1] for p in parts if p.startswith("preset=")), DEFAULT_PRESET)
+    rest = ",".join(p for p in parts if not p.startswith("preset="))
+    return preset, rest
+
+
+def recipe_rows(df, input_kind: str) -> list[dict]:
+    """One row per DMesh configuration of `input_kind` in `df` (the store's dataframe): label, preset,
+    "gradient steps" or "initialisation", and the recipe."""
+    import importlib
+
+    from eval.reports.tables import display_name, method_label
+
+    methods = DMESH_METHODS.get(input_kind, {})
+    if not len(df):
+        return []
+    sub = df[(df["input_kind"] == input_kind) & df["method"].isin(list(methods))]
+    rows = []
+    for (method, label), _ in sub.groupby(["method", "config_label"], sort=True):
+        recipes = importlib.import_module(methods[method]).RECIPES
+        preset, rest = _preset(label)
+        steps, text = recipes.get(preset, (None, f"unknown preset {preset!r}"))
+        if rest:
+            text += f" Overrides: {rest}."
+        kind = "gradient steps" if steps else ("initialisation" if steps is not None else "?")
+        rows.append({"method": method_label(display_name(method, input_kind), label), "preset": preset,
+                     "kind": kind, "recipe": text})
+    return rows
+
+
+def recipe_markdown(rows: list[dict]) -> str:
+    """The "DMesh recipes" section of a Table 2 Markdown report ("" without DMesh rows)."""
+    if not rows:
+        return ""
+    out = ["## DMesh recipes", "",
+           "Which DMesh rows take gradient steps and which come from an initialisation, and how each recipe "
+           "differs from the paper's.", "",
+           "| row | preset | made by | recipe |", "|---|---|---|---|"]
+    out += [f"| {r['method']} | {r['preset']} | {r['kind']} | {r['recipe']} |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+__all__ = ["recipe_rows", "recipe_markdown", "DMESH_METHODS"]

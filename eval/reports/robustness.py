@@ -1,0 +1,430 @@
+"""The robustness report: how each method's accuracy degrades on corrupted inputs, and accuracy at equal size.
+
+Reads the runs of sweeps with input `variants` (`eval.sweep`; their input settings hold a "corruption" dict,
+`datasets.corrupt`) and writes into the report folder:
+
+    robustness.md / robustness.csv         one row per input kind, method, class, corruption and level: CD p2s,
+                                           CD L1, time, faces, ... (means over the done runs, failures counted)
+    robustness_budget.csv                  CD p2s against output faces (clean geometry, every config / density)
+    figures/robustness_<kind>.png          CD p2s against level, one panel per class and corruption
+    figures/robustness_budget_<kind>.png   matched budget: CD p2s against output face count, one panel per class
+    figures/robustness_scan_<shape>.png    renders of the realistic-scan setting: GT, the scan, each method
+
+A run's corruption and level: a variant with one setting (`{noise: 0.005}`) is that corruption at that
+level; the clean variant (`{}`) is every corruption at its clean level (noise 0, outliers 0, density = the
+sweep's n_points, ...); a variant with several settings is a combined setting, named "realistic_scan" when it
+holds a scan, its level being the settings themselves. Corruption rows are shown for the method configs that
+ran on some corrupted input; configs run only on clean inputs (the matched-budget sizes) appear in the
+budget view. Frame and units as in Table 2: the GT normalised to max vertex norm 1, CD x1e-3 in Markdown, raw
+distances in the CSV.
+"""
+from __future__ import annotations
+
+import html as _html
+import logging
+from pathlib import Path
+
+from eval.io import write_text
+
+log = logging.getLogger(__name__)
+
+#: Corruptions in the order the report shows them.
+FACTORS = ("noise", "outliers", "density", "nonuniform", "normals", "scan", "depth_noise", "views", "resolution")
+#: Corruptions where a smaller level is the harder one (fewer points, cameras, views, pixels).
+_DESCENDING = ("density", "scan", "views", "resolution")
+CSV_COLUMNS = ["input", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1", "time_s",
+               "faces", "fscore", "normal_consistency", "setting"]
+BUDGET_COLUMNS = ["input", "method", "category", "config", "density", "n", "faces", "cd_p2s", "time_s"]
+_METRICS = (("cd_p2s", ("cd_p2s",)), ("cd_l1", ("cd_l1",)), ("time_s", ("time_s",)), ("faces", ("faces", "n_faces")),
+            ("fscore", ("fscore", "f_score")), ("normal_consistency", ("normal_consistency", "nc")))
+_CLASSES = ("closed", "open", "mixed")
+
+
+# --------------------------------------------------------------------------------------------------- rows
+
+def is_robustness(df):
+    """(rows,) bool Series: the runs of `df` (a `Store.dataframe()`) made on a sweep variant."""
+    if df is None or not len(df) or "inputs_json" not in df.columns:
+        import pandas as pd
+
+        return pd.Series(False, index=getattr(df, "index", None), dtype=bool)
+    return df["inputs_json"].map(lambda s: isinstance(s, dict) and isinstance(s.get("corruption"), dict))
+
+
+def has_runs(df) -> bool:
+    """Whether `df` holds a run on a corrupted (not clean) input."""
+    if df is None or not len(df):
+        return False
+    sub = df[is_robustness(df)]
+    return bool(len(sub)) and any(corruption_of(s)[0] != "clean" for s in sub["inputs_json"])
+
+
+def setting_label(corruption: dict) -> str:
+    """"noise=0.005,outliers=0.01" ("clean" for {})."""
+    return ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in sorted(corruption.items())) \
+        or "clean"
+
+
+def corruption_of(settings: dict) -> tuple[str, object]:
+    """(corruption name, level) of a run's input settings (module docstring)."""
+    c = dict(settings.get("corruption") or {})
+    factors = [k for k in c if not (k == "normals" and "scan" in c)]
+    if not factors:
+        return "clean", None
+    if len(factors) == 1:
+        return factors[0], c[factors[0]]
+    return ("realistic_scan" if "scan" in c else "combined"), setting_label(c)
+
+
+def _severity(factor: str, level, clean) -> tuple:
+    """Sort key: the clean level first, then from the mildest to the harshest level."""
+    if level == clean:
+        return (0, 0.0, "")
+    if isinstance(level, str):
+        return (1, 0.0, level)
+    return (1, -float(level) if factor in _DESCENDING else float(level), "")
+
+
+def _labelled(df):
+    """The robustness runs of `df` with columns _kind_label (method label), _name and _level."""
+    from eval.reports.tables import display_name, method_label
+
+    sub = df[is_robustness(df)].copy()
+    named = sub["inputs_json"].map(corruption_of)
+    sub["_name"] = named.map(lambda x: x[0])
+    sub["_level"] = named.map(lambda x: x[1])
+    sub["_label"] = [method_label(display_name(m, k), c) for m, k, c in
+                     zip(sub["method"], sub["input_kind"], sub["config_label"])]
+    return sub
+
+
+def _aggregate(g) -> dict:
+    from eval.reports.tables import num
+
+    done = g[g["status"] == "done"]
+    row = {"n": int(len(done)), "failed": int((g["status"] == "failed").sum())}
+    for col, names in _METRICS:
+        name = next((n for n in names if n in done.columns), None)
+        vals = [num(v) for v in done[name]] if name else []
+        vals = [v for v in vals if v is not None]
+        row[col] = sum(vals) / len(vals) if vals else None
+    return row
+
+
+def robustness_rows(df) -> list[dict]:
+    """One row per input kind, method (+ config), class, corruption and level (raw units; module docstring)."""
+    if df is None or not len(df):
+        return []
+    sub = _labelled(df)
+    rows = []
+    for kind, gk in sub.groupby("input_kind", sort=True):
+        corrupted = gk[gk["_name"] != "clean"]
+        labels = sorted(set(corrupted["_label"]))
+        names = [f for f in FACTORS if f in set(corrupted["_name"])]
+        names += sorted(set(corrupted["_name"]) - set(FACTORS))
+        for label in labels:
+            gm = gk[gk["_label"] == label]
+            for cat in [c for c in _CLASSES if c in set(gm["category"])] + sorted(set(gm["category"]) - set(_CLASSES)):
+                gc = gm[gm["category"] == cat]
+                for name in names:
+                    rows += _factor_rows(gc, kind, label, cat, name)
+    return rows
+
+
+def _factor_rows(gc, kind: str, label: str, cat: str, name: str) -> list[dict]:
+    """Rows of one corruption for one method and class: its levels, with the clean runs at the clean level."""
+    import pandas as pd
+
+    from datasets.corrupt import clean_level
+
+    runs = gc[gc["_name"] == name]
+    if not len(runs):
+        return []
+    clean_value = clean_level(name, runs["inputs_json"].iloc[0]) if name in FACTORS else None
+    clean = gc[gc["_name"] == "clean"]
+    if name in FACTORS and len(clean):
+        runs = pd.concat([clean.assign(_level=[clean_level(name, s) for s in clean["inputs_json"]]), runs])
+    out = []
+    for level in sorted(set(runs["_level"]), key=lambda v: _severity(name, v, clean_value)):
+        if name not in FACTORS:
+            setting = level
+        else:
+            setting = "clean" if level == clean_value else f"{name}={_fmt_level(level)}"
+        out.append({"input": kind, "method": label, "category": cat, "corruption": name, "level": level,
+                    **_aggregate(runs[runs["_level"] == level]), "setting": setting})
+    return out
+
+
+def _fmt_level(level) -> str:
+    return f"{level:g}" if isinstance(level, float) else str(level)
+
+
+def budget_rows(df) -> list[dict]:
+    """Matched budget: per input kind, method, class, config and density, mean faces and CD p2s of the runs on
+    clean geometry (the clean variant, or density alone), in raw units."""
+    from eval.reports.tables import display_name
+
+    if df is None or not len(df):
+        return []
+    sub = _labelled(df)
+    sub = sub[sub["_name"].isin(["clean", "density"])]
+    rows = []
+    for (kind, method, clabel, cat), g in sub.groupby(["input_kind", "method", "config_label", "category"], sort=True):
+        dens = g["inputs_json"].map(lambda s: (s.get("corruption") or {}).get("density", s.get("n_points")))
+        for d in sorted(set(dens), key=lambda v: -(v or 0)):
+            agg = _aggregate(g[dens == d])
+            rows.append({"input": kind, "method": display_name(method, kind), "category": cat,
+                         "config": clabel or "default", "density": d, "n": agg["n"], "faces": agg["faces"],
+                         "cd_p2s": agg["cd_p2s"], "time_s": agg["time_s"]})
+    return rows
+
+
+def dmesh_ratios(rows: list[dict]) -> list[dict]:
+    """Per input kind, class, corruption and level: the best method's CD p2s and DMesh's, with their ratio
+    (the issue's goal: DMesh within 1.2x of the best)."""
+    out, groups = [], {}
+    for r in rows:
+        if r["cd_p2s"] is not None:
+            groups.setdefault((r["input"], r["category"], r["corruption"], str(r["level"])), []).append(r)
+    for (kind, cat, name, _), rs in groups.items():
+        best = min(rs, key=lambda r: r["cd_p2s"])
+        dm = [r for r in rs if r["method"] == "dmesh"]
+        if not dm:
+            continue
+        out.append({"input": kind, "category": cat, "corruption": name, "level": rs[0]["level"],
+                    "best": best["method"], "best_cd_p2s": best["cd_p2s"], "dmesh_cd_p2s": dm[0]["cd_p2s"],
+                    "ratio": dm[0]["cd_p2s"] / best["cd_p2s"] if best["cd_p2s"] > 0 else None})
+    return out
+
+
+# --------------------------------------------------------------------------------------------------- plots
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def line_plots(rows: list[dict], kind: str, out: Path) -> Path | None:
+    """CD p2s (x1e-3, log) against level, one panel per class (rows) and corruption (columns)."""
+    rows = [r for r in rows if r["input"] == kind and r["corruption"] in FACTORS]
+    if not rows:
+        return None
+    plt = _pyplot()
+    cats = [c for c in _CLASSES if any(r["category"] == c for r in rows)]
+    names = [f for f in FACTORS if any(r["corruption"] == f for r in rows)]
+    methods = sorted({r["method"] for r in rows})
+    cmap = plt.get_cmap("tab10")
+    fig, axes = plt.subplots(len(cats), len(names), figsize=(max(6.5, 3.1 * len(names)), 2.6 * len(cats) + 0.8),
+                             squeeze=False)
+    for i, cat in enumerate(cats):
+        for j, name in enumerate(names):
+            ax = axes[i, j]
+            rs = [r for r in rows if r["category"] == cat and r["corruption"] == name]
+            levels = list(dict.fromkeys(r["level"] for r in rs))  # in severity order (robustness_rows)
+            for k, m in enumerate(methods):
+                pts = [(levels.index(r["level"]), r["cd_p2s"] * 1e3) for r in rs
+                       if r["method"] == m and r["cd_p2s"] is not None and r["cd_p2s"] > 0]
+                if pts:
+                    ax.plot(*zip(*pts), marker="o", ms=3.5, lw=1.3, color=cmap(k % 10), label=m)
+            ax.set_xticks(range(len(levels)), [_fmt_level(v) for v in levels], fontsize=7)
+            ax.set_yscale("log")
+            _plain_ticks(ax)
+            ax.grid(alpha=0.3, which="both")
+            ax.set_title(f"{name} ({cat})", fontsize=9)
+            if j == 0:
+                ax.set_ylabel("CD p2s (x1e-3)", fontsize=8)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(6, len(labels) or 1), fontsize=8)
+    fig.suptitle(f"Robustness, {kind} input: CD p2s against the corruption level (clean level first)", fontsize=10)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.97))
+    return _save(fig, plt, out)
+
+
+def budget_plot(rows: list[dict], kind: str, out: Path) -> Path | None:
+    """CD p2s against output faces (log-log), one panel per class: solid lines join a method's configs on the
+    full input, dashed lines its default config at lower input densities."""
+    rows = [r for r in rows if r["input"] == kind and r["faces"] and r["cd_p2s"]]
+    sizes = {}
+    for r in rows:
+        sizes[(r["method"], r["category"])] = sizes.get((r["method"], r["category"]), 0) + 1
+    if not sizes or max(sizes.values()) < 2:  # no method at two sizes: nothing to match
+        return None
+    plt = _pyplot()
+    cats = [c for c in _CLASSES if any(r["category"] == c for r in rows)]
+    methods = sorted({r["method"] for r in rows})
+    full = max(r["density"] or 0 for r in rows)
+    cmap = plt.get_cmap("tab10")
+    fig, axes = plt.subplots(1, len(cats), figsize=(4.2 * len(cats), 3.8), squeeze=False)
+    for ax, cat in zip(axes[0], cats):
+        for k, m in enumerate(methods):
+            rs = [r for r in rows if r["category"] == cat and r["method"] == m]
+            for sel, style in (([r for r in rs if r["density"] == full], "-"),
+                               ([r for r in rs if r["config"] == "default"], "--")):
+                sel = sorted(sel, key=lambda r: r["faces"])
+                if sel:
+                    ax.plot([r["faces"] for r in sel], [r["cd_p2s"] * 1e3 for r in sel], style, marker="o", ms=3.5,
+                            color=cmap(k % 10), label=m if style == "-" else None)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        _plain_ticks(ax, "y")
+        ax.grid(alpha=0.3, which="both")
+        ax.set_xlabel("output faces")
+        ax.set_title(cat, fontsize=9)
+    axes[0, 0].set_ylabel("CD p2s (x1e-3)")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"Matched budget, {kind} input: accuracy against mesh size (solid: configs at {full} points; "
+                 "dashed: default config at lower densities)", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, plt, out)
+
+
+def _plain_ticks(ax, axes: str = "y") -> None:
+    """Log-axis ticks at 1, 2, 5 x 10^k, labelled as plain numbers (0.2, 1, 5) instead of powers of ten."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    for name in axes:
+        axis = ax.yaxis if name == "y" else ax.xaxis
+        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axis.set_minor_formatter(NullFormatter())
+
+
+def _save(fig, plt, out: Path) -> Path:
+    from eval.io import atomic_path
+
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+    return out
+
+
+def scan_renders(df, db: Path, work: Path, figdir: Path) -> list[tuple[str, Path]]:
+    """One figure per shape of the realistic-scan runs (point clouds): GT, the scanned input, each method's mesh.
+
+    A figure whose GT, input or a done run's mesh is missing here (a fresh clone with only the store export) is
+    not redrawn: the figure already in `figdir`, if any, is kept and listed."""
+    from eval.reports import figures, tables
+    from eval.runner import input_path, resolve_mesh_path, shape_dir
+    from eval.sweep import ShapeRef
+
+    sub = _labelled(df)
+    sub = sub[(sub["_name"] == "realistic_scan") & (sub["input_kind"] == "pointcloud")]
+    cache, out = work / "renders", []
+    for (cat, shape, setting), g in sub.groupby(["category", "shape", "_level"], sort=True):
+        first = g.sort_values("seed").iloc[0]
+        settings, name = first["inputs_json"], f"robustness_scan_{_safe(shape)}.png"
+        title = f"{shape} ({cat}), realistic scan: {setting}, seed {int(first['seed'])}"
+        ref = ShapeRef(id=shape, kind="file", source="", gt_hash=first["gt_hash"] or "")
+        gt = shape_dir(work, ref, float(settings.get("radius", 1.0))) / "gt.ply"
+        pc = input_path(work, ref, "pointcloud", settings, int(first["seed"]))
+        runs = g[g["seed"] == first["seed"]].sort_values(["method", "config_label"])
+        meshes = [resolve_mesh_path(r.to_dict(), db) for _, r in runs.iterrows()]
+        missing = not gt.is_file() or not pc.is_file() or any(
+            r["status"] == "done" and (p is None or not p.is_file()) for (_, r), p in zip(runs.iterrows(), meshes))
+        if missing:
+            if (figdir / name).is_file():
+                out.append((title, figdir / name))
+            continue
+        try:
+            panels = [("ground truth", figures.cached_render(gt, cache)),
+                      (f"input: {len(_points(pc))} scanned points", figures.cached_render(pc, cache, "points"))]
+            for (_, r), p in zip(runs.iterrows(), meshes):
+                label = tables.method_label(r["method"], r["config_label"])
+                if r["status"] == "done":
+                    panels.append((f"{label}\nCD p2s {tables.fmt(float(r['cd_p2s']) * 1e3)}e-3",
+                                   figures.cached_render(p, cache)))
+                else:
+                    panels.append((f"{label}\n{r['status']}", figures._placeholder(r["status"])))
+            out.append((title, figures.side_by_side(panels, figdir / name, title, cache=cache)))
+        except Exception as exc:  # noqa: BLE001 - a figure that cannot be drawn must not lose the tables
+            log.warning("realistic-scan renders for %s skipped: %s", shape, exc)
+    return out
+
+
+def _points(path: Path):
+    import numpy as np
+
+    with np.load(path) as z:
+        return z["points"]
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_@." else "_" for c in name)
+
+
+# --------------------------------------------------------------------------------------------------- files
+
+def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]]) -> str:
+    from eval.reports.tables import FRAME_NOTE, markdown
+
+    cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
+            ("corruption", "corruption", None), ("level", "level", None), ("n", "n", 1), ("failed", "failed", 1),
+            ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1),
+            ("faces", "faces", 1)]
+    shown = [{**r, "level": _fmt_level(r["level"])} for r in rows]
+    out = ["# Robustness: corrupted inputs, simulated scans and matched budgets", "",
+           f"{FRAME_NOTE} Corruptions and their levels (fractions of the radius for noise and depth noise; "
+           "fraction of the points for outliers; points kept for density; densest / sparsest for nonuniform; "
+           "cameras for scan) are defined in `datasets/corrupt.py` and `datasets/scan.py`. The clean input is "
+           "the first level of every corruption. Means over the done runs (n), failures counted; CD p2s is the "
+           "point-to-surface Chamfer L1 (x1e-3 here, raw in the CSV); time is the method's wall time in seconds.",
+           ""]
+    out += [markdown(shown, cols) if rows else "_No runs on corrupted inputs in the store yet._\n"]
+    if ratios:
+        out += ["", "## DMesh against the best method (goal: within 1.2x)", "",
+                markdown([{**r, "level": _fmt_level(r["level"])} for r in ratios],
+                         [("input", "input", None), ("category", "class", None), ("corruption", "corruption", None),
+                          ("level", "level", None), ("best", "best method", None),
+                          ("best_cd_p2s", "best CD p2s (x1e-3)", 1e3), ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3),
+                          ("ratio", "DMesh / best", 1, ".2f")])]
+    if budget:
+        out += ["", "## Matched budget: CD p2s against output size (clean geometry)", "",
+                markdown(budget, [("input", "input", None), ("method", "method", None),
+                                  ("category", "class", None), ("config", "config", None),
+                                  ("density", "input points", 1), ("n", "n", 1), ("faces", "faces", 1),
+                                  ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("time_s", "time (s)", 1)])]
+    if figs or renders:
+        out += ["", "## Figures", ""] + [f"- [{p.name}](figures/{p.name})" for p in figs]
+        out += [f"- [{p.name}](figures/{p.name}): {t}" for t, p in renders]
+    out += ["", "_Generated from the results store by `eval.reports.robustness`; do not edit by hand._", ""]
+    return "\n".join(out)
+
+
+def write_robustness(df, out: str | Path, db: str | Path | None = None, work: str | Path | None = None,
+                     renders: bool = True) -> tuple[list[Path], str]:
+    """Writes the robustness report files (module docstring) from `df` (`Store.dataframe()`, runs selected).
+
+    Returns:
+        (written paths, the HTML body of its section of index.html).
+    """
+    from eval.reports.html import table_html
+    from eval.reports.tables import to_csv
+
+    out = Path(out)
+    figdir = out / "figures"
+    rows, budget = robustness_rows(df), budget_rows(df)
+    ratios = dmesh_ratios(rows)
+    figs = [p for kind in ("pointcloud", "multiview") for p in
+            (line_plots(rows, kind, figdir / f"robustness_{kind}.png"),
+             budget_plot(budget, kind, figdir / f"robustness_budget_{kind}.png")) if p is not None]
+    scans = scan_renders(df, Path(db), Path(work or Path(db).parent), figdir) if renders and db else []
+    md, csv, bcsv = out / "robustness.md", out / "robustness.csv", out / "robustness_budget.csv"
+    write_text(md, _markdown(rows, budget, ratios, figs, scans))
+    write_text(csv, to_csv([{**r, "level": _fmt_level(r["level"])} for r in rows], CSV_COLUMNS))
+    write_text(bcsv, to_csv(budget, BUDGET_COLUMNS))
+    body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV</a> "
+            f"<a href='{bcsv.name}'>budget CSV</a></p>"]
+    if ratios:
+        body.append(table_html([{**r, "level": _fmt_level(r["level"])} for r in ratios],
+                               [("input", "input", None), ("category", "class", None),
+                                ("corruption", "corruption", None), ("level", "level", None),
+                                ("best", "best", None), ("best_cd_p2s", "best CD p2s (x1e-3)", 1e3),
+                                ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3), ("ratio", "DMesh / best", 1, ".2f")]))
+    body += [f"<img src='figures/{p.name}' alt='{_html.escape(p.stem)}'>" for p in figs]
+    body += [f"<h3>{_html.escape(t)}</h3><img src='figures/{p.name}' alt='{_html.escape(t)}'>" for t, p in scans]
+    return [md, csv, bcsv, *figs, *(p for _, p in scans)], "\n".join(body)

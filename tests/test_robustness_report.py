@@ -1,0 +1,238 @@
+"""The robustness report (`eval.reports.robustness`) from a hand-made store, the compact store export
+(`eval.export`) and `--report-only` on a clone without a store, and one tiny corrupted sweep end to end.
+
+Means, counts and levels are checked against hand computations on the rows written here.
+"""
+from __future__ import annotations
+
+import csv
+import gzip
+from pathlib import Path
+
+import pytest
+
+from eval.export import EXPORT_NAME, export_store, keep_tables, load_export, read_export
+from eval.reports import robustness, write_reports
+from eval.store import Store
+
+REALISTIC = {"noise": 0.0025, "outliers": 0.01, "scan": 6, "normals": "estimated"}
+
+
+def _row(key, method, shape, category, corruption, cd=None, time_s=1.0, faces=100, status="done", config="",
+         started="2026-01-01T00:00:00+00:00", n_points=1000):
+    inputs = {"radius": 1.0, "metric_samples": 1000, "n_points": n_points}
+    if corruption is not None:
+        inputs["corruption"] = corruption
+    row = {"key": key, "method": method, "config_label": config, "shape": shape, "category": category,
+           "input_kind": "pointcloud", "config_json": {}, "inputs_json": inputs, "seed": 0, "status": status,
+           "gt_hash": "0" * 64, "code_version": "test", "started_at": started}
+    if status == "done":
+        row.update(metrics_json={"cd_p2s": cd, "cd_l1": 2 * cd, "faces": faces},
+                   timings_json={"total": time_s}, info_json={}, peak_memory_mb=1.0, mesh_path=f"meshes/{key}.ply")
+    else:
+        row["error"] = "RuntimeError: boom"
+    return row
+
+
+ROWS = [
+    # psr, closed: two shapes, clean and noise levels
+    _row("a1", "psr", "torus", "closed", {}, 1e-3, faces=1000),
+    _row("a2", "psr", "genus2", "closed", {}, 3e-3, faces=3000),
+    _row("a3", "psr", "torus", "closed", {"noise": 0.005}, 5e-3),
+    _row("a4", "psr", "genus2", "closed", {"noise": 0.005}, 7e-3),
+    _row("a5", "psr", "torus", "closed", {"noise": 0.01}, status="failed"),
+    _row("a6", "psr", "torus", "closed", {"density": 200}, 4e-3, faces=500),
+    _row("a7", "psr", "torus", "closed", REALISTIC, 9e-3),
+    _row("a8", "psr", "torus", "closed", {}, 2e-3, faces=200, config="depth=6"),  # a budget size: clean only
+    # dmesh, closed
+    _row("b1", "dmesh", "torus", "closed", {}, 1.5e-3),
+    _row("b2", "dmesh", "torus", "closed", {"noise": 0.005}, 4e-3),
+    # bpa, open
+    _row("c1", "bpa", "bowl", "open", {}, 0.5e-3),
+    _row("c2", "bpa", "bowl", "open", {"noise": 0.005}, 6e-3),
+    # a plain run (no variant): Table 2's, not the robustness report's
+    _row("p1", "psr", "torus", "closed", None, 1e-3),
+]
+
+
+@pytest.fixture
+def db(tmp_path):
+    path = tmp_path / "work" / "results.sqlite"
+    with Store(path) as s:
+        for r in ROWS:
+            s.upsert(r)
+    return path
+
+
+def _df(db):
+    from eval.reports import select_runs
+
+    with Store(db) as s:
+        return select_runs(s.dataframe())
+
+
+def _read_csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_rows_per_method_class_corruption_and_level(db):
+    rows = robustness.robustness_rows(_df(db))
+    psr = {(r["corruption"], str(r["level"])): r for r in rows if r["method"] == "psr"}
+    # noise: the clean runs at level 0, then 0.005 (two shapes), then 0.01 (failed only)
+    assert [str(r["level"]) for r in rows if r["method"] == "psr" and r["corruption"] == "noise"] == \
+        ["0.0", "0.005", "0.01"]
+    assert psr[("noise", "0.0")]["n"] == 2 and psr[("noise", "0.0")]["cd_p2s"] == pytest.approx(2e-3)
+    assert psr[("noise", "0.005")]["cd_p2s"] == pytest.approx(6e-3) and psr[("noise", "0.005")]["n"] == 2
+    assert psr[("noise", "0.01")]["n"] == 0 and psr[("noise", "0.01")]["failed"] == 1
+    assert psr[("noise", "0.01")]["cd_p2s"] is None
+    # density: clean level = n_points first, then the lower density
+    assert [r["level"] for r in rows if r["method"] == "psr" and r["corruption"] == "density"] == [1000, 200]
+    real = [r for r in rows if r["method"] == "psr" and r["corruption"] == "realistic_scan"]
+    assert len(real) == 1 and real[0]["cd_p2s"] == pytest.approx(9e-3)
+    assert real[0]["level"] == "noise=0.0025,normals=estimated,outliers=0.01,scan=6"
+    # the budget config ran on clean input only: no corruption rows; the plain run is not counted
+    assert not any(r["method"] == "psr [depth=6]" for r in rows)
+    assert {r["method"] for r in rows} == {"psr", "dmesh", "bpa"}
+    bpa = [r for r in rows if r["method"] == "bpa"]
+    assert {r["category"] for r in bpa} == {"open"} and len(bpa) == 2
+
+
+def test_dmesh_ratio_against_the_best(db):
+    ratios = robustness.dmesh_ratios(robustness.robustness_rows(_df(db)))
+    r = next(x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.005)
+    assert r["best"] == "dmesh" and r["ratio"] == pytest.approx(1.0)
+    r0 = next(x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.0)
+    assert r0["best"] == "dmesh" and r0["dmesh_cd_p2s"] == pytest.approx(1.5e-3)
+
+
+def test_budget_rows_hold_configs_and_densities(db):
+    rows = robustness.budget_rows(_df(db))
+    psr = {(r["config"], r["density"]): r for r in rows if r["method"] == "psr"}
+    assert set(psr) == {("default", 1000), ("default", 200), ("depth=6", 1000)}
+    assert psr[("default", 1000)]["faces"] == pytest.approx(2000) and psr[("depth=6", 1000)]["faces"] == 200
+
+
+def test_report_files_and_columns(db, tmp_path):
+    out = tmp_path / "rep"
+    paths, body = robustness.write_robustness(_df(db), out, db, db.parent, renders=False)
+    rows = _read_csv(out / "robustness.csv")
+    for col in ("method", "category", "corruption", "level", "cd_p2s", "time_s"):
+        assert col in rows[0]
+    noisy = next(r for r in rows if r["method"] == "psr" and r["corruption"] == "noise" and r["level"] == "0.005")
+    assert float(noisy["cd_p2s"]) == pytest.approx(6e-3) and noisy["n"] == "2"
+    assert (out / "figures" / "robustness_pointcloud.png").is_file()
+    assert (out / "figures" / "robustness_budget_pointcloud.png").is_file()
+    md = (out / "robustness.md").read_text()
+    assert "| pointcloud | psr | closed | noise | 0.005 | 2 | 0 | 6.00 |" in md and "DMesh / best" in md
+    assert all(p.is_file() for p in paths) and "<img" in body
+    assert not list(out.rglob("*.tmp"))
+
+
+def test_write_reports_keeps_robustness_runs_out_of_table2(db, tmp_path):
+    out = tmp_path / "rep"
+    write_reports(db, out, renders=False)
+    t2 = _read_csv(out / "table2_pointcloud.csv")
+    assert [(r["method"], r["n"]) for r in t2] == [("psr", "1")]  # the plain run only
+    assert (out / "robustness.csv").is_file() and "Robustness" in (out / "index.html").read_text()
+
+
+def test_export_round_trip_latest_only_and_same_bytes(db, tmp_path):
+    with Store(db) as s:  # an older run of a configuration the store holds again: not exported
+        s.upsert(_row("old", "psr", "torus", "closed", {}, 9.9, started="2025-01-01T00:00:00+00:00"))
+        s.upsert({**_row("run", "psr", "plant", "mixed", {}, 1.0), "status": "running"})
+    a, b = tmp_path / "a.jsonl.gz", tmp_path / "b.jsonl.gz"
+    assert export_store(db, a) == len(ROWS) and export_store(db, b) == len(ROWS)
+    assert a.read_bytes() == b.read_bytes()
+    runs = read_export(a)
+    assert sorted(r["key"] for r in runs) == sorted(r["key"] for r in ROWS)
+    copy = tmp_path / "copy" / "results.sqlite"
+    load_export(a, copy, mesh_root=tmp_path / "work")
+    with Store(db) as s1, Store(copy) as s2:
+        for r in ROWS:
+            x, y = s1.get(r["key"]), s2.get(r["key"])
+            for col in ("status", "metrics_json", "timings_json", "inputs_json", "config_label", "category"):
+                assert x[col] == y[col], col
+        assert s2.get("a1")["mesh_path"] == str(tmp_path / "work" / "meshes" / "a1.ply")
+
+
+def test_broken_exports_are_one_line_errors(tmp_path):
+    p = tmp_path / "x.jsonl.gz"
+    for content, match in ((b"not gzip", "cannot be read"), (gzip.compress(b'{"format": "other"}\n'), "header"),
+                           (gzip.compress(b'{"format": "dmesh-harness runs", "version": 1, "runs": 2}\n{"key": "a", '
+                                          b'"status": "done"}\n'), "truncated")):
+        p.write_bytes(content)
+        with pytest.raises(ValueError, match=match) as info:
+            read_export(p)
+        assert "\n" not in str(info.value)
+
+
+def test_report_only_on_a_clone_reads_the_export_and_keeps_figures(db, tmp_path, capsys):
+    from eval.cli import main
+
+    reports = tmp_path / "reports"
+    export_store(db, reports / EXPORT_NAME)
+    figure = reports / "figures" / "renders_pointcloud_torus.png"
+    figure.parent.mkdir(parents=True)
+    figure.write_bytes(b"committed render")  # its meshes are not on this clone: it must stay as it is
+    rc = main(["-q", "reproduce-tables", "--report-only", "--work", str(tmp_path / "fresh"), "-o", str(reports)])
+    assert rc == 0, capsys.readouterr().err
+    assert [r["method"] for r in _read_csv(reports / "table2_pointcloud.csv")] == ["psr"]
+    assert len(_read_csv(reports / "robustness.csv")) > 5
+    assert figure.read_bytes() == b"committed render"
+    assert not (tmp_path / "fresh" / "results.sqlite").exists()
+
+
+def test_report_only_without_store_or_export_is_one_line_error(tmp_path, capsys):
+    from eval.cli import main
+
+    rc = main(["-q", "reproduce-tables", "--report-only", "--work", str(tmp_path / "w"), "-o", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "no store export" in err and len(err.splitlines()) == 1
+
+
+def test_a_report_pass_never_empties_a_committed_table(tmp_path):
+    out = tmp_path / "reports"
+    out.mkdir()
+    (out / "table1.csv").write_text("shape,method,RE\nbunny,dmesh_fit,99.0\n")
+    (out / "table1.md").write_text("# committed\n")
+    with keep_tables(out):
+        write_reports(_empty_store(tmp_path), out, renders=False)
+    assert (out / "table1.md").read_text() == "# committed\n" and "bunny" in (out / "table1.csv").read_text()
+    assert (out / "table2_pointcloud.csv").is_file()  # tables that had no rows before are written as usual
+
+
+def _empty_store(tmp_path) -> Path:
+    path = tmp_path / "empty" / "results.sqlite"
+    with Store(path):
+        pass
+    return path
+
+
+def test_tiny_corrupted_sweep_end_to_end(tmp_path):
+    """A real sweep: ball pivoting on 2000-point clouds of a sphere, clean, noisy and with outliers."""
+    pytest.importorskip("open3d")
+    import numpy as np
+
+    from eval.runner import RunnerConfig, input_path, prepare_gt, run_sweep
+    from eval.sweep import Sweep, resolve_shape
+
+    sweep = Sweep(methods=("bpa",), shapes=("sphere",), n_points=2000, metric_samples=2000,
+                  variants=[{}, {"noise": 0.01}, {"outliers": 0.05}])
+    summary = run_sweep(sweep, RunnerConfig(work=str(tmp_path / "w")))
+    assert summary.done == 3 and summary.failed == 0
+    with Store(summary.db) as s:
+        rows = {r["key"]: r for r in s.rows()}
+    specs = {k: rows[k] for k in summary.keys}
+    clean = next(r for r in specs.values() if r["inputs_json"]["corruption"] == {})
+    noisy = next(r for r in specs.values() if r["inputs_json"]["corruption"] == {"noise": 0.01})
+    assert noisy["metrics_json"]["cd_p2s"] > clean["metrics_json"]["cd_p2s"]
+    shape, _ = prepare_gt(resolve_shape("sphere"), tmp_path / "w")
+    with np.load(input_path(tmp_path / "w", shape, "pointcloud", noisy["inputs_json"], 0)) as z, \
+            np.load(input_path(tmp_path / "w", shape, "pointcloud", clean["inputs_json"], 0)) as c:
+        d = z["points"].astype(np.float64) - c["points"]  # the noisy cloud is the clean one, displaced
+        assert len(d) == 2000 and abs(d.std() / 0.01 - 1) < 0.05
+    robustness.write_robustness(_df(Path(summary.db)), tmp_path / "rep", summary.db, tmp_path / "w", renders=False)
+    got = _read_csv(tmp_path / "rep" / "robustness.csv")
+    assert {(r["corruption"], r["level"]) for r in got} == {("noise", "0"), ("noise", "0.01"), ("outliers", "0"),
+                                                            ("outliers", "0.05")}
