@@ -332,7 +332,8 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         method = method if method is not None else get_method(spec.method)
         config, _ = build_config(method, spec.overrides)
         inputs = load_inputs(spec, Path(gt_path), work)
-        inputs.monitor = gt_monitor(load_gt(gt_path))
+        gt = load_gt(gt_path)
+        inputs.monitor = gt_monitor(gt)
         result = method.reconstruct(inputs, config)
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
@@ -346,7 +347,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         # Mesh to DMesh: a method whose output keeps the GT vertices first says how many in its info
         # ("re_fp_vertices"), which adds RE / FP to the metrics (Table 1).
         k = (result.info or {}).get("re_fp_vertices")
-        metrics = compute_metrics(mesh, load_gt(gt_path), n=int(spec.inputs.get("metric_samples", 100_000)),
+        metrics = compute_metrics(mesh, gt, n=int(spec.inputs.get("metric_samples", 100_000)),
                                   seed=0, **({"re_fp_vertices": int(k)} if k is not None else {}))
         timings = {k: float(v) for k, v in dict(result.timings).items()}
         if "total" not in timings:

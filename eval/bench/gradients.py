@@ -20,6 +20,7 @@ Regenerate: `python -m eval.bench gradients` (about a minute); writes reports/be
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import torch
@@ -47,7 +48,7 @@ def _initial_dmesh(pts, cfg):
     from dmesh.recon.pointcloud import reconstruct
     from dmesh.representation import DMesh
 
-    res = reconstruct(pts, None, cfg.__class__(**{**cfg.__dict__, "steps_phase1": 0, "steps_phase2": 0}))
+    res = reconstruct(pts, None, dataclasses.replace(cfg, steps_phase1=0, steps_phase2=0))
     d = res.dmesh
     return DMesh(d.points.detach().numpy(), d.weights.detach().numpy(), d.reals.detach().numpy(),
                  cfg.probability_config())
