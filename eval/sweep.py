@@ -433,16 +433,19 @@ def resolve_shape(spec: str, data_root: str | Path | None = None) -> ShapeRef:
 
 # --------------------------------------------------------------------------------------------------- code
 
-#: Source trees every run depends on (inputs, baselines and metrics).
-COMMON_TREES = ("datasets", "baselines", "eval/metrics.py", "eval/metrics", "eval/closest_point.py")
-#: Extra trees for methods built on the DMesh library.
-DMESH_TREES = ("dmesh", "native")
+#: Modules every run depends on besides its method: the GT and input generation and the metrics.
+INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.sampling",
+                 "datasets.capture", "datasets.corrupt", "datasets.scan", "eval.metrics", "eval.closest_point")
+#: Packages of this repository whose modules a run's code version follows through imports.
+PROJECT_PACKAGES = ("dmesh", "baselines", "datasets", "eval")
+#: The native sources, which a run depends on when its closure imports `dmesh.native`.
+NATIVE_TREES = ("native",)
 _SOURCE_SUFFIXES = (".py", ".cpp", ".cc", ".h", ".hpp", ".cu", ".cuh", ".txt", ".cmake")
 
 
 def source_hash(trees: tuple[str, ...], root: str | Path = REPO) -> str:
     """SHA-256 (hex) over the relative paths and bytes of the source files under `trees` of `root`."""
-    return _source_hash(tuple(sorted(trees)), str(root))
+    return _source_hash(tuple(sorted(set(trees))), str(root))
 
 
 @functools.lru_cache(maxsize=None)
@@ -468,22 +471,87 @@ def package_version() -> str:
         return "0+unknown"
 
 
-def method_trees(method) -> tuple[str, ...]:
-    """The source trees a method's results depend on: its own `code_trees` attribute if it has one,
-    else the common trees, plus `dmesh/` and `native/` for DMesh-based methods."""
+def _module_file(name: str, root: Path) -> Path | None:
+    """The source file of project module `name` under `root` (a module or a package's __init__), or None."""
+    if name.split(".")[0] not in PROJECT_PACKAGES:
+        return None
+    base = root.joinpath(*name.split("."))
+    for f in (base.with_suffix(".py"), base / "__init__.py"):
+        if f.is_file():
+            return f
+    return None
+
+
+def _imported_modules(path: Path, name: str) -> set[str]:
+    """Module names that the source at `path` (module `name`) imports anywhere, lazy imports included; for
+    `from a import b` both `a` and `a.b` (b may be a submodule)."""
+    import ast
+
+    is_pkg = path.name == "__init__.py"
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against this module's package
+                pkg = name.split(".")[: len(name.split(".")) - node.level + (1 if is_pkg else 0)]
+                mod = ".".join(pkg + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            out.add(mod)
+            out.update(f"{mod}.{alias.name}" for alias in node.names)
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def module_closure(roots: tuple[str, ...], root: str) -> tuple[str, ...]:
+    """Repository-relative source files of the project modules `roots` and of every project module they import,
+    transitively (lazy imports included), plus the `__init__.py` of each package on the way and, when
+    `dmesh.native` is among them, the native sources. A package's `__init__` is hashed but its imports are not
+    followed (a re-exporting `__init__` would otherwise tie every module of the package to every other)."""
+    base = Path(root)
+    files: set[Path] = set()
+    seen: set[str] = set()
+    todo = list(roots)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        f = _module_file(name, base)
+        if f is None:
+            continue
+        files.add(f)
+        parts = name.split(".")
+        for i in range(1, len(parts)):
+            init = _module_file(".".join(parts[:i]), base)
+            if init is not None:
+                files.add(init)
+        if f.name != "__init__.py" or name in roots:
+            todo.extend(_imported_modules(f, name))
+    out = sorted(str(f.relative_to(base)) for f in files)
+    if "dmesh.native" in seen and _module_file("dmesh.native", base) is not None:
+        out += list(NATIVE_TREES)
+    return tuple(out)
+
+
+def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
+    """The sources a method's results depend on: its own `code_trees` attribute if it has one, else the files of
+    its module and of the project modules it imports (`module_closure`), plus the input generation and the
+    metrics (`INPUT_MODULES`). So editing one baseline, or the harness around the runs, reruns no other
+    method's stored runs."""
     own = getattr(method, "code_trees", None)
     if own:
         return tuple(own)
-    module = getattr(type(method), "__module__", "") or ""
-    fn_module = getattr(getattr(method, "reconstruct", None), "__module__", "") or ""
-    parts = module.split(".") + fn_module.split(".")
-    uses_dmesh = str(getattr(method, "name", "")).startswith("dmesh") or any(p.startswith("dmesh") for p in parts)
-    return COMMON_TREES + (DMESH_TREES if uses_dmesh else ())
+    modules = {getattr(type(method), "__module__", "") or "",
+               getattr(getattr(method, "reconstruct", None), "__module__", "") or ""}
+    roots = tuple(sorted(m for m in modules if m and m != "builtins")) + INPUT_MODULES
+    return module_closure(roots, str(root))
 
 
 def code_version(method, root: str | Path = REPO) -> str:
-    """Package version + '+' + the first 16 hex digits of the method's source hash."""
-    return f"{package_version()}+src.{source_hash(method_trees(method), root)[:16]}"
+    """Package version + '+' + the first 16 hex digits of the hash of the method's sources (`method_trees`)."""
+    return f"{package_version()}+src.{source_hash(method_trees(method, root), root)[:16]}"
 
 
 # --------------------------------------------------------------------------------------------------- runs

@@ -107,17 +107,33 @@ def test_source_hash_changes_with_the_code(tmp_path):
     assert source_hash(("pkg",), tmp_path) != h1
 
 
-def test_dmesh_methods_depend_on_the_library_sources():
-    from eval.sweep import DMESH_TREES, method_trees
+def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
+    """Keys hash the method's module and what it imports (plus inputs and metrics): editing one baseline
+    changes its own code version and no other method's; DMesh methods follow the library and native code."""
+    import shutil
 
-    class Baseline:
-        name = "psr"
+    from eval.sweep import REPO, _source_hash, code_version, get_method, method_trees, module_closure
 
-    class DMeshLike:
-        name = "dmesh_pc"
+    psr, bpa, dm = get_method("psr"), get_method("bpa"), get_method("dmesh")
+    assert "baselines/psr.py" in method_trees(psr) and "baselines/bpa.py" not in method_trees(psr)
+    assert not any(t.startswith("dmesh/") or t == "native" for t in method_trees(psr))
+    assert {"dmesh/recon/pointcloud.py", "dmesh/losses/chamfer.py", "native"} <= set(method_trees(dm))
+    assert {"datasets/synthetic.py", "eval/metrics.py"} <= set(method_trees(psr))
 
-    assert not set(DMESH_TREES) & set(method_trees(Baseline()))
-    assert set(DMESH_TREES) <= set(method_trees(DMeshLike()))
+    for pkg in ("dmesh", "baselines", "datasets", "eval"):
+        shutil.copytree(Path(REPO) / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    before = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
+    with open(tmp_path / "baselines" / "bpa.py", "a") as f:
+        f.write("\n# an edit\n")
+    _source_hash.cache_clear()
+    module_closure.cache_clear()
+    after = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
+    assert after["bpa"] != before["bpa"]
+    assert after["psr"] == before["psr"] and after["dmesh"] == before["dmesh"]
+    with open(tmp_path / "datasets" / "sampling.py", "a") as f:
+        f.write("\n# an edit\n")
+    _source_hash.cache_clear()
+    assert all(code_version(m, tmp_path) != after[m.name] for m in (psr, bpa, dm))
 
 
 def test_sweep_yaml_round_trip_and_validation(tmp_path):
