@@ -75,7 +75,7 @@ class DMeshPointCloud(Method):
         import numpy as np
 
         from dmesh.recon.pointcloud import extract
-        from dmesh.representation import DMesh
+        from dmesh.model import DMesh
 
         center = pts.mean(0)  # reconstruct's normalisation (its docstring, step 1)
         radius = float(np.linalg.norm(pts - center, axis=1).max())

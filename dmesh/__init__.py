@@ -10,7 +10,7 @@ __version__ = "0.1.0"
 
 def __getattr__(name):  # lazy: `import dmesh` stays cheap
     if name == "DMesh":
-        from dmesh.representation import DMesh
+        from dmesh.model import DMesh
 
         return DMesh
     raise AttributeError(f"module 'dmesh' has no attribute {name!r}")

@@ -217,7 +217,7 @@ def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool
     """The mesh of a DMesh as a `trimesh.Trimesh` over the used points (float64, the DMesh's frame).
 
     Args:
-        dm: `dmesh.representation.DMesh`; threshold: real value above which a point is real.
+        dm: `dmesh.model.DMesh`; threshold: real value above which a point is real.
         pd: its `PowerDiagram` (None: a fresh one).
         mode: which real faces (`mesh_faces`).
         orient: False: those faces as sorted triples; True: the oriented, closed `surface` of them, whose

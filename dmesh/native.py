@@ -17,7 +17,10 @@ except ImportError as exc:  # pragma: no cover - only without a build
         "dmesh._native is not built; run `make setup` (or `pip install --no-build-isolation -e .`)"
     ) from exc
 
-from dmesh.typing import GEOMETRY_DTYPE, INDEX_DTYPE
+#: dtype of every index array crossing the native boundary (see native/src/types.h).
+INDEX_DTYPE = np.int32
+#: dtype of geometry that decides combinatorics (positions, weights, orthocentres).
+GEOMETRY_DTYPE = np.float64
 
 
 def as_points(points, name: str = "points") -> np.ndarray:

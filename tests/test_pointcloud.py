@@ -262,7 +262,7 @@ def test_step_gradients_native_equal_reference_in_float64():
     vertices, the box corners) have faces with Delta exactly 0 or ill-conditioned dual lines, where the two
     implementations may pick different subgradients or round differently."""
     from dmesh.losses.regularizers import add_phase1_regularizers
-    from dmesh.representation import DMesh
+    from dmesh.model import DMesh
     from helpers import assert_close
 
     _, pts, _ = _shape_cloud("torus", 4000)

@@ -1,6 +1,23 @@
-"""Reconstruction procedures built on `dmesh.DMesh` (DESIGN.md section 6); their shared optimisation loop
-is `dmesh.recon.loop`."""
-from dmesh.recon.loop import ReconstructionResult
-from dmesh.recon.pointcloud import PRESETS, PointCloudConfig, PointCloudResult, reconstruct
+"""Reconstruction procedures built on `dmesh.DMesh` (DESIGN.md section 6).
 
-__all__ = ["PRESETS", "PointCloudConfig", "PointCloudResult", "ReconstructionResult", "reconstruct"]
+- `config`: the settings, presets and recipes of every procedure (torch-free);
+- `loop`: the one optimisation loop (a step function per phase, history, checkpoints);
+- `pointcloud`, `multiview`, `mesh_to_dmesh`: the procedures, each supplying its step functions.
+
+The package imports nothing eagerly, so `dmesh.recon.config` stays cheap; the names below load on first use.
+"""
+
+_LAZY = {"ReconstructionResult": "dmesh.recon.loop", "PRESETS": "dmesh.recon.pointcloud",
+         "PointCloudConfig": "dmesh.recon.config", "PointCloudResult": "dmesh.recon.pointcloud",
+         "reconstruct": "dmesh.recon.pointcloud"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'dmesh.recon' has no attribute {name!r}")
+
+
+__all__ = sorted(_LAZY)

@@ -26,7 +26,7 @@ from dmesh import wdt
 
 def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generator, domain: float = 1.0,
                       max_voronoi: int | None = None, corner_box: float | None = 1.25,
-                      keep: str = "largest", vertices: str = "all") -> tuple[np.ndarray, np.ndarray]:
+                      vertices: str = "all") -> tuple[np.ndarray, np.ndarray]:
     """Initial DMesh points and real values.
 
     Args:
@@ -34,10 +34,9 @@ def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generat
         num_seeds: seeds drawn without replacement (all points when G is smaller).
         rng: NumPy generator.
         domain: Voronoi vertices outside [-domain, domain]^3 are dropped.
-        max_voronoi: keep at most this many Voronoi vertices; None keeps all.
-        keep: which ones `max_voronoi` keeps: "largest" (those farthest from the seeds, i.e. with the
-            largest empty sphere: nearest the medial axis, where they carve; small spheres hug the surface
-            and are what punches holes into the first mesh) or "random".
+        max_voronoi: keep at most this many Voronoi vertices, those farthest from the seeds (the largest
+            empty spheres: nearest the medial axis, where they carve; small spheres hug the surface and are
+            what punches holes into the first mesh); None keeps all.
         vertices: "all" Voronoi vertices (upstream) or each seed's two "poles" (module docstring).
         corner_box: when set, the 8 corners of [-corner_box, corner_box]^3 join the seeds' triangulation
             and are returned as imaginary points: flat inputs (a disc) then still have a 3D triangulation,
@@ -70,12 +69,7 @@ def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generat
     vor, first = np.unique(np.round(vor, 12), axis=0, return_index=True)
     radius = radius[first]
     if max_voronoi is not None and len(vor) > max_voronoi:
-        if keep == "largest":
-            vor = vor[np.argsort(-radius, kind="stable")[: int(max_voronoi)]]
-        elif keep == "random":
-            vor = vor[rng.choice(len(vor), int(max_voronoi), replace=False)]
-        else:
-            raise ValueError(f"keep must be 'largest' or 'random', got {keep!r}")
+        vor = vor[np.argsort(-radius, kind="stable")[: int(max_voronoi)]]
     positions = np.concatenate([seeds, vor, corners])
     reals = np.r_[np.ones(len(seeds)), np.zeros(len(vor) + len(corners))]
     return positions, reals

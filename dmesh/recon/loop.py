@@ -40,12 +40,10 @@ from typing import Callable
 import numpy as np
 import torch
 
+from dmesh.recon.config import TRAIN_ALL  # noqa: F401 - re-exported (every parameter trains in phase 1)
 from dmesh.recon.optim import BoundedAdam
 
 log = logging.getLogger(__name__)
-
-#: Every parameter of a DMesh trains (phase 1); phase 2 trains ("reals",) only.
-TRAIN_ALL = ("points", "weights", "reals")
 
 
 class Clock:

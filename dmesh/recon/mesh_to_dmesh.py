@@ -362,7 +362,7 @@ def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
     """
     import trimesh
 
-    from dmesh.representation import DMesh
+    from dmesh.model import DMesh
 
     cfg = config or MeshToDMeshConfig()
     v, f = _validate(vertices, faces)

@@ -65,10 +65,12 @@ import torch
 
 from dmesh.extract import SurfaceConfig, mesh_faces, surface_of_mesh, towards_cameras
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
-from dmesh.probability import ProbabilityConfig, dmin
+from dmesh.probability import dmin
+from dmesh.recon.config import (INIT_MODES, INTERIOR_MODES, MULTIVIEW_PRESETS as PRESETS,  # noqa: F401 - re-exported
+                                 MULTIVIEW_RECIPES as RECIPES, REFINE_LR, REFINE_STEPS, MultiViewConfig)
 from dmesh.recon.init import seeds_and_voronoi
 from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
-from dmesh.recon.optim import BoundedAdam, StepConfig
+from dmesh.recon.optim import BoundedAdam
 
 log = logging.getLogger(__name__)
 
@@ -76,265 +78,8 @@ log = logging.getLogger(__name__)
 MIN_BOX = 1.05
 #: The point box stays this fraction inside the nearest camera's box (keeps cameras off the hull).
 BOX_MARGIN = 0.98
-INTERIOR_MODES = ("apex", "visible", "both", "sheet", "none")
-INIT_MODES = ("grid", "depth")
-#: The `refine` preset's phase-1 and phase-2 steps and its learning rate (= per-step bound).
-REFINE_STEPS = (10, 5)
-REFINE_LR = 1e-5
 #: Depth range (normalised frame: the object's diameter) mapped to 1 in the depth channel.
 DEPTH_SPAN = 2.0
-
-
-def _tuple(value, n: int, name: str) -> tuple:
-    """`value` (int or sequence) as a tuple of n ints (an int is repeated)."""
-    if isinstance(value, (int, np.integer)):
-        return (int(value),) * n
-    out = tuple(int(v) for v in value)
-    if len(out) != n:
-        raise ValueError(f"MultiViewConfig.{name} needs {n} entries (one per epoch), got {len(out)}")
-    return out
-
-
-@dataclass(frozen=True)
-class MultiViewConfig:
-    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
-
-    init: str = "grid"               # epoch 0 starts from a "grid" (upstream) or the "depth" pixels' DMesh
-    init_points: int = 100_000       # "depth": lifted pixels given to the point-cloud reconstruction
-    init_preset: str = "fast"        # "depth": its `PointCloudConfig` preset
-    grid: int = 20                   # epoch 0: grid^3 real points
-    grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
-    refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
-    voronoi_per_seed: float | None = None  # re-seeds keep <= this many Voronoi vertices per seed (None: all)
-    voronoi: str = "all"            # re-seeds' imaginary points: "all" Voronoi vertices or the seeds' "poles"
-    even_seeds: bool = False         # re-seeds spread evenly (farthest-point) instead of at random
-    domain: float = 1.0              # Voronoi vertices outside [-domain, domain]^3 are dropped
-    box: float = 1.25                # points stay in [-b, b]^3, b = min(box, 0.98 x the cameras' box)
-    steps_phase1: tuple = (500, 500, 500, 500)  # per epoch: steps with the soft renderer
-    steps_phase2: tuple = (500, 500, 500, 500)  # per epoch: steps with the tetrahedral renderer
-    lr_first: float = 1e-3           # epoch 0 learning rate (positions, weights; reals: / max_real)
-    bound_first: float = 1e-3        # epoch 0 per-step bound of each coordinate
-    lr: float = 3e-4                 # later epochs' learning rate
-    update_bound: float = 3e-4       # later epochs' per-step bound
-    max_real_first: float = 3e-3     # epoch 0: upstream's real-value scale (reals' lr and bound: lr / it)
-    max_real: float = 3e-3           # later epochs' real-value scale
-    views_per_step: int = 16         # random views rendered per step (upstream batch size)
-    resolution: int | None = None    # images are area-averaged to this side (None: the capture's)
-    lambda_depth: float = 1.0        # weight of the depth channel's L1 (diffuse 1); see `depth_channel`
-    lambda_weight: float = 1e-8      # weight regulariser (power-diagram edge lengths)
-    lambda_real_start: float = 1e-2  # real regulariser coefficient at phase-1 step 0 of each epoch
-    lambda_real_end: float = 1e-3    # ... after `real_ramp_steps`, and in phase 2
-    real_ramp_steps: int = 100       # phase-1 steps of the linear ramp
-    lambda_quality: float = 1e-3     # quality regulariser (aspect ratio x max edge x Lambda)
-    freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
-    alpha_thresh: float = 1e-3       # faces with Lambda_wdt x max(r) at or below it are not drawn
-    edge_width: float = 1.0          # soft renderer: width of the soft band outside each triangle (pixels)
-    band_targets: bool = True        # phase-1 targets get the soft renderer's silhouette band (unbiased fit)
-    alpha_wdt: float = 1000.0        # sigmoid sharpness of Lambda_wdt
-    alpha_real: float = 100.0        # softmin sharpness of Lambda_real
-    knn_interval: int = 10           # kNN candidate triples every this many steps
-    knn_k: int = 8                   # neighbours of the kNN candidate triples
-    active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
-    threshold: float = 0.5           # real value above which a point is on the final mesh
-    interior: str = "apex"           # interior-face removal: one of INTERIOR_MODES
-    select_best: bool = False        # return the epoch whose mesh renders closest to all the images (with
-                                     # init="depth", the start too: info["selected_epoch"] -1)
-    depth_tolerance: float | None = None  # keep only faces within this of the captured depth in some view
-    orient: bool = True              # output the faces' oriented, closed surface (dmesh.extract.surface)
-    save_every: int = 50             # steps between resumable state saves (with a state path)
-    kernels: str = "native"          # Delta recomputation: "native" (C++) or "reference" (torch, for checks)
-    seed: int = 0                    # seed of every random choice
-
-    def __post_init__(self):
-        seeds = tuple(int(s) for s in self.refine_seeds)
-        object.__setattr__(self, "refine_seeds", seeds)
-        n = 1 + len(seeds)
-        object.__setattr__(self, "steps_phase1", _tuple(self.steps_phase1, n, "steps_phase1"))
-        object.__setattr__(self, "steps_phase2", _tuple(self.steps_phase2, n, "steps_phase2"))
-        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
-        if int(self.grid) < 2:
-            raise ValueError(f"MultiViewConfig.grid must be >= 2, got {self.grid}")
-        if any(s < 4 for s in seeds):
-            raise ValueError(f"MultiViewConfig.refine_seeds must all be >= 4, got {seeds}")
-        if any(s < 0 for s in self.steps_phase1 + self.steps_phase2):
-            raise ValueError("MultiViewConfig.steps_phase1 / steps_phase2 must be >= 0")
-        for name in ("views_per_step", "knn_k"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"MultiViewConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("real_ramp_steps", "knn_interval", "save_every"):
-            if int(getattr(self, name)) < 0:
-                raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("grid_extent", "domain", "box", "lr_first", "bound_first", "lr", "update_bound",
-                     "max_real_first", "max_real", "edge_width", "alpha_wdt", "alpha_real"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"MultiViewConfig.{name} must be positive, got {getattr(self, name)}")
-        for name in ("lambda_depth", "lambda_weight", "lambda_real_start", "lambda_real_end",
-                     "lambda_quality", "alpha_thresh"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
-        if self.voronoi_per_seed is not None and not self.voronoi_per_seed >= 0:
-            raise ValueError(f"MultiViewConfig.voronoi_per_seed must be >= 0 or None, got {self.voronoi_per_seed}")
-        if self.resolution is not None and int(self.resolution) < 4:
-            raise ValueError(f"MultiViewConfig.resolution must be >= 4 or None, got {self.resolution}")
-        if self.depth_tolerance is not None and not self.depth_tolerance > 0:
-            raise ValueError(f"MultiViewConfig.depth_tolerance must be positive or None, got {self.depth_tolerance}")
-        if self.voronoi not in ("all", "poles"):
-            raise ValueError(f"MultiViewConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
-        if self.init not in INIT_MODES:
-            raise ValueError(f"MultiViewConfig.init must be one of {INIT_MODES}, got {self.init!r}")
-        if int(self.init_points) < 10:
-            raise ValueError(f"MultiViewConfig.init_points must be >= 10, got {self.init_points}")
-        from dmesh.recon.pointcloud import PRESETS as PC_PRESETS
-
-        if self.init_preset not in PC_PRESETS:
-            raise ValueError(f"MultiViewConfig.init_preset must be one of {PC_PRESETS}, got {self.init_preset!r}")
-        if self.interior not in INTERIOR_MODES:
-            raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
-        if not 0.0 <= self.threshold < 1.0:
-            raise ValueError(f"MultiViewConfig.threshold must be in [0, 1), got {self.threshold}")
-        from dmesh.recon.pointcloud import KERNELS
-
-        if self.kernels not in KERNELS:
-            raise ValueError(f"MultiViewConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
-
-    @property
-    def epochs(self) -> int:
-        return 1 + len(self.refine_seeds)
-
-    @classmethod
-    def paper(cls, **overrides) -> "MultiViewConfig":
-        """The published settings (appendix 10.2; upstream exp_3 thingi/objaverse configs): 4 epochs of
-        500 + 500 steps, 16 views per step at the capture's resolution, real regulariser 1e-2 -> 1e-3 over
-        100 steps (the paper's "1e-2 closed / 1e-3 open" for the first 100 steps; upstream's plant config),
-        diffuse and depth L1 with weight 1 each (upstream's depth is 1 - (ndc_z + 1) / 2 with near 1 and
-        far 3: slope 1.5 / z^2 ~ 0.4 per unit at the object centre; our depth channel's slope is 0.5, see
-        `depth_channel`). Interior faces: upstream's rule ("apex")."""
-        return cls(**overrides)
-
-    @classmethod
-    def fast(cls, **overrides) -> "MultiViewConfig":
-        """The paper's procedure at a CPU budget: 3-4 minutes per shape (64 views at 256 pixels) on 2 cores,
-        against the paper's 1434 s on a GPU; the accuracy is far behind TSDF fusion on closed shapes
-        (reports/table2_multiview.md). The `depth` preset starts from the depth pixels instead and beats it.
-
-        Without the depth-consistency filter (harness, 2 threads; CD p2s x1e-3 from 100K samples per side,
-        TSDF fusion on the same captures beside it): torus 35.2 in 141 s (TSDF 1.19), genus2 37.2 in 242 s
-        (1.67), trefoil 32.4 in 180 s (1.84), bowl 67.6 in 261 s (11.9). Most of that CD was predicted
-        surface inside the object: on the torus 85-100% of the area farther than 0.03 from the GT lay inside
-        it. `depth_tolerance=0.02` (about one optimised pixel) removes the faces that no view sees on its
-        captured surface: torus 31.0 -> 18.6 on one thread (0.04: 22.7). A shrink of the remaining surface
-        (median signed distance about -0.01) comes from the coarse start: epoch 1 re-seeded from the GT
-        itself and optimised 40 steps ends at a median of -0.002. `soft_band_targets` removed the
-        renderer's own half-pixel bias (torus 34.7 -> 31.0 on one thread).
-
-        The choices, each measured on the torus / bowl / plant captures (CD p2s x1e-3, one thread; runs
-        differ a lot from one another, so only large gaps count): a 14^3 grid instead of 20^3 (20^3 costs
-        2-4 s per step and 40 steps left the torus at 143; 16^3 gave the bowl 120 against 14^3's 126);
-        epoch 0 at lr 2e-3 with the reals' lr kept at 0.33 per step (bowl 84 after epoch 0 against 126 at
-        lr 1e-3: points must travel a grid spacing); re-seeds of 1000 and 3000 samples with all their
-        Voronoi vertices (keeping 3 per seed: torus 56 against 37 with all; a third re-seed of 10000 with
-        4000 Voronoi vertices: torus 147); the capture's resolution (below), 6 views per step (at 128
-        pixels, 4: bowl epoch 0 126, 8: 107); the "both" interior rule (with apex only, 97% of the torus's
-        predicted area farther than 0.03 from the GT lay inside it: interior faces left standing); and
-        `select_best`, which returned the bowl's epoch-0 mesh (86 against 108 for its last epoch; the
-        image loss over all views ranked the epochs as the CD did in most runs looked at, but not all: see
-        below). The weight regulariser (an orthocentre pass over every tet) is off; upstream's phase-2
-        freeze at step 0 is kept (no freeze and 40 phase-2 steps: torus 59). Tried on the torus and not
-        kept (with the band targets unless said): the later epochs at lr 1e-3 (epoch 1: 83 against 45,
-        without band targets); 80 steps in epoch 1 instead of 40 (image loss 0.058 against 0.071, CD 44.3
-        against 44.8, without band targets); even (farthest-point) re-seeds (`even_seeds`: 44.6 against
-        31.0, though with a lower image loss); even re-seeds with poles only (`voronoi="poles"`: 36.6, its
-        last epoch collapsed); quality regulariser 1e-2 (35.8, again a lower image loss). Images at the
-        capture's 256 pixels (`resolution=None`, the paper's setting) instead of 128: torus 12.9 against 18.6
-        on one thread; the Table 2 sweep (harness, 2 threads, class means over 4 shapes) closed 16.7 against
-        18.9, open 20.1 against 19.6, mixed 15.7 against 19.1, in 173-230 s per shape against 118-143 s."""
-        base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(60, 40, 40), steps_phase2=(20, 20, 20),
-                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=None,
-                    lambda_weight=0.0, real_ramp_steps=10, freeze_phase2=(0,), interior="both", select_best=True,
-                    depth_tolerance=0.02, save_every=10)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def depth(cls, **overrides) -> "MultiViewConfig":
-        """Depth pixels first (not upstream): epoch 0 is DMesh's point-cloud fit to 100K lifted depth pixels
-        (`depth_init`, point-cloud `fast` preset), then the multi-view extraction: "both" interior rule at
-        the capture's resolution and the depth-consistency filter. No image-loss step: measured on top of
-        this start they only hurt (20 phase-2 steps: plant 0.49 -> 3.52, torus 0.17 -> 0.17; CD p2s x1e-3,
-        one thread). Against the `fast` preset on one thread: torus 0.17 in 77 s (fast 18.6), bowl 0.08,
-        plant 0.49 (TSDF fusion on the same captures: 1.19, 11.8, 8.73). Interior rules on the torus:
-        "both" 0.17, "sheet" 0.21, "apex" 0.26; the point-cloud fit's own mesh 0.20."""
-        base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="both",
-                    depth_tolerance=0.02, select_best=False, save_every=10)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def refine(cls, **overrides) -> "MultiViewConfig":
-        """The `depth` start followed by image-loss steps (not upstream): phase-1 steps with the soft renderer at
-        a small learning rate (the start's points are about 0.01 apart), then phase-2 steps on the reals, and
-        `select_best` with the start as a candidate, so the result is never a mesh that renders farther from
-        the images than the start. For depth maps with noise, where the diffuse images carry the shape's
-        normals. Its measurements: `reports/table2_multiview.md` and `python -m eval.bench refine`."""
-        base = dict(init="depth", refine_seeds=(), steps_phase1=(REFINE_STEPS[0],), steps_phase2=(REFINE_STEPS[1],),
-                    lr_first=REFINE_LR, bound_first=REFINE_LR, max_real_first=3e-3, views_per_step=6,
-                    resolution=None, lambda_weight=0.0, lambda_real_start=1e-3, real_ramp_steps=0,
-                    freeze_phase2=(0,), interior="both", depth_tolerance=0.02, select_best=True, save_every=10)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def tiny(cls, **overrides) -> "MultiViewConfig":
-        """Seconds, for tests: the fast preset's recipe on an 8^3 grid and one re-seed of 300 points (600
-        Voronoi vertices), 30 + 10 and 15 + 10 steps at 48 pixels; depth tolerance 0.1, about two of its
-        pixels (sphere, 16 views at 96 pixels, CD p2s: none 0.144, 0.05 0.127, 0.1 0.099, 0.2 0.131)."""
-        base = dict(grid=8, refine_seeds=(300,), voronoi_per_seed=2.0, steps_phase1=(30, 15), steps_phase2=(10, 10),
-                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=4, resolution=48,
-                    lambda_weight=0.0, real_ramp_steps=4, freeze_phase2=(0,), interior="both", select_best=True,
-                    depth_tolerance=0.1, save_every=10)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> "MultiViewConfig":
-        """`paper`, `fast`, `depth`, `refine` or `tiny`."""
-        if name not in PRESETS:
-            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
-        return getattr(cls, name)(**overrides)
-
-    def probability_config(self) -> ProbabilityConfig:
-        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
-                                 knn_interval=self.knn_interval, knn_k=self.knn_k, active_band=self.active_band,
-                                 impl=self.kernels)
-
-    def step_config(self, epoch: int) -> StepConfig:
-        if epoch == 0:
-            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first)
-        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real)
-
-    def total_steps(self) -> int:
-        return sum(self.steps_phase1) + sum(self.steps_phase2)
-
-
-PRESETS = ("paper", "fast", "depth", "refine", "tiny")
-#: Per preset: (whether it takes image-loss gradient steps, how it differs from the paper). Reports print
-#: these beside every DMesh row.
-RECIPES = {
-    "paper": (True, "the published recipe: a 20^3 grid, then re-seeds of 1K, 3K and 10K surface samples, 500 "
-                    "soft-renderer + 500 tetrahedral-renderer steps per epoch, 16 views per step at the capture's "
-                    "resolution, L1 of diffuse + depth. Differs: silhouette gradients come from the soft "
-                    "renderer's analytic coverage (upstream: a 0.1 x hard-render term), depth channel slope 0.5."),
-    "fast": (True, "the paper's procedure cut to a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1K and 3K "
-                   "samples, 60 + 20 / 40 + 20 / 40 + 20 steps, 6 views per step; interior faces removed by "
-                   "apex and visibility, faces off the captured depth dropped, the epoch whose mesh renders "
-                   "closest to the images kept."),
-    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
-                     "pixels, then the multi-view interior and depth filters; no image-loss step."),
-    "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
-                     "tetrahedral-renderer steps (6 views per step), keeping the start when the steps do not "
-                     "lower the image loss over all views."),
-    "tiny": (True, "tests only: an 8^3 grid and one re-seed of 300 samples at 48 pixels."),
-}
 
 
 @dataclass
@@ -473,7 +218,7 @@ def depth_init(vw: _Views, center: np.ndarray, scale: float, box: float, cfg: Mu
     start refined through the images (see `MultiViewConfig.depth`)."""
     from dmesh.recon.pointcloud import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct as reconstruct_points
-    from dmesh.representation import DMesh
+    from dmesh.model import DMesh
 
     pts = (_lifted_points(vw) - center) * scale
     if len(pts) > cfg.init_points:
@@ -586,26 +331,6 @@ def sample_surface(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
     u[fold], w[fold] = 1.0 - u[fold], 1.0 - w[fold]
     t = tri[pick]
     return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0])
-
-
-def even_samples(mesh, n: int, rng: np.random.Generator, oversample: int = 8) -> np.ndarray:
-    """(n, 3) float64 points spread evenly over a mesh: farthest-point selection from `oversample` x n
-    area-uniform samples, starting at a random one.
-
-    Written here because no core dependency has it (open3d's is harness-only); n iterations of an O(n)
-    update, about a second for n = 10^4. Even seeds give the re-seeded mesh rounder triangles than random
-    ones, whose clusters and gaps leave slivers and folds.
-    """
-    dense = sample_surface(mesh, oversample * n, rng)
-    if len(dense) <= n:
-        return dense
-    chosen = np.empty(n, dtype=np.int64)
-    chosen[0] = rng.integers(len(dense))
-    dist = np.sum((dense - dense[chosen[0]]) ** 2, axis=1)
-    for k in range(1, n):
-        chosen[k] = int(np.argmax(dist))
-        np.minimum(dist, np.sum((dense - dense[chosen[k]]) ** 2, axis=1), out=dist)
-    return dense[chosen]
 
 
 def interior_faces(pd, real: np.ndarray) -> np.ndarray:
@@ -773,7 +498,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
     Delta) reduce in a fixed order.
     """
     from dmesh.render import Camera, soft_render_views, tet_render_views
-    from dmesh.representation import DMesh
+    from dmesh.model import DMesh
 
     cfg = config or MultiViewConfig.paper()
     if not isinstance(cfg, MultiViewConfig):
@@ -837,7 +562,7 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
             return DMesh(pts, None, None, cfg.probability_config())
         n = cfg.refine_seeds[epoch - 1]
         keep = None if cfg.voronoi_per_seed is None else int(math.ceil(cfg.voronoi_per_seed * n))
-        samples = even_samples(mesh, n, rng) if cfg.even_seeds else sample_surface(mesh, n, rng)
+        samples = sample_surface(mesh, n, rng)
         pos, reals = seeds_and_voronoi(samples, n, rng, min(cfg.domain, box), keep, box, vertices=cfg.voronoi)
         return DMesh(np.clip(pos, -box, box), np.ones(len(pos)), reals, cfg.probability_config())
 

@@ -46,7 +46,7 @@ def _input(n: int):
 def _initial_dmesh(pts, cfg):
     """The DMesh `reconstruct` starts from with `cfg` (no step), with a fresh probability state."""
     from dmesh.recon.pointcloud import reconstruct
-    from dmesh.representation import DMesh
+    from dmesh.model import DMesh
 
     res = reconstruct(pts, None, dataclasses.replace(cfg, steps_phase1=0, steps_phase2=0))
     d = res.dmesh

@@ -97,7 +97,7 @@ def _mv_views():
 def _full_run(pts, nrm, gt_mesh, out: str) -> dict:
     """The full point-cloud paper preset, native kernels; loss and CD p2s against the step."""
     from dmesh.recon.pointcloud import PointCloudConfig, extract, reconstruct
-    from dmesh.representation import DMesh
+    from dmesh.model import DMesh
     from eval.metrics import chamfer_l1_p2s
 
     cfg = PointCloudConfig.paper(kernels="native")

@@ -195,7 +195,7 @@ def build_config(preset: str, seed: int, steps: int | None, normals: bool, overr
         values["steps_phase2"] = steps - values["steps_phase1"]
     if normals:
         values["lambda_normal"] = 1e-3
-    for key in ("freeze_phase1", "freeze_phase2", "knn_thresholds"):
+    for key in ("freeze_phase2", "knn_thresholds"):
         if key in overrides and not isinstance(overrides[key], (list, tuple)):
             overrides[key] = [overrides[key]]
     values.update(overrides)

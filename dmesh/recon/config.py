@@ -1,0 +1,426 @@
+"""Settings of the reconstructions: frozen configs with one comment per field, their presets, and what each
+preset does differently from the paper (its recipe). Torch-free, so the command line lists the preset names
+without importing the library's kernels; `from_preset` is the one way from a preset name and overrides to a
+config (unknown keys raise ValueError naming the known ones).
+
+- `PointCloudConfig` (`dmesh.recon.pointcloud.reconstruct`): presets `POINTCLOUD_PRESETS`.
+- `MultiViewConfig` (`dmesh.recon.multiview.reconstruct`): presets `MULTIVIEW_PRESETS`.
+"""
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass, fields
+from typing import Mapping
+
+#: Implementations of the step's kernels (the expected Chamfer and the Delta recomputation).
+KERNELS = ("native", "reference")
+#: What phase-1 steps may move.
+TRAIN_ALL = ("points", "weights", "reals")
+#: The default preset of both reconstructions.
+DEFAULT_PRESET = "fast"
+POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "tiny")
+MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
+
+
+def from_preset(cls, preset: str | None = None, overrides: Mapping | None = None, *, owner: str = ""):
+    """`cls.preset(preset, **overrides)` (default preset `DEFAULT_PRESET`) for a config class of this module.
+
+    Raises:
+        ValueError: an unknown preset, or override keys that are not fields of `cls` (the message names the
+            known ones; `owner` prefixes it, e.g. a harness method's name).
+    """
+    overrides = dict(overrides or {})
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"{owner + ': ' if owner else ''}unknown config keys {unknown}; known: {sorted(known)}")
+    return cls.preset(str(preset or DEFAULT_PRESET), **overrides)
+
+
+# ------------------------------------------------------------------------------------------- point clouds
+
+@dataclass(frozen=True)
+class PointCloudConfig:
+    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
+
+    num_init: int = 10_000          # input points used as real seeds
+    max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
+    voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
+    carve: float = 0.0              # > 0: imaginary points on first-mesh faces this many seed spacings from
+                                    # the input (dmesh.recon.init.carve_far_faces); 0: off (upstream)
+    domain: float = 1.0             # Voronoi vertices outside [-domain, domain]^3 are dropped
+    num_target: int = 100_000       # input points used as the Chamfer target (random subset)
+    num_samples: int = 100_000      # points sampled on the DMesh per step (two strata of half each)
+    steps_phase1: int = 1000        # steps optimising positions, weights and reals
+    steps_phase2: int = 500         # steps optimising reals on the frozen tessellation
+    lr: float = 3e-4                # Adam learning rate (positions, weights; reals: lr / max_real)
+    update_bound: float = 3e-4      # per-step bound of each coordinate (reals: update_bound / max_real)
+    max_real: float = 3e-3          # upstream's real-value scale (sets the reals' lr and bound)
+    grad_clip: float | None = None  # per-point gradient norm clip (None: update_bound / lr)
+    k_max: int = 100                # largest (and first) K of the target -> ours term
+    mass_tol: float = 1e-4          # residual probability mass that makes K grow
+    prob_threshold: float = 1e-3    # faces below this stratum factor are never sampled
+    lambda_weight: float = 1e-8     # weight regulariser (power-diagram edge lengths)
+    lambda_real_start: float = 1e-3  # real regulariser coefficient at phase-1 step 0
+    lambda_real_end: float = 1e-3   # ... after `real_ramp_steps`, and in phase 2
+    real_ramp_steps: int = 100      # phase-1 steps of the linear ramp of the real coefficient
+    lambda_quality: float = 1e-3    # quality regulariser (aspect ratio x max edge x Lambda)
+    lambda_normal: float = 0.0      # normal term of Eq. 13 (needs input normals)
+    train_phase1: tuple = ("points", "weights", "reals")  # what phase-1 steps move (upstream: all three)
+    freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
+    alpha_wdt: float = 1000.0       # sigmoid sharpness of Lambda_wdt
+    alpha_real: float = 100.0       # softmin sharpness of Lambda_real
+    knn_interval: int = 10          # kNN candidate triples every this many steps
+    knn_k: int = 8                  # neighbours of the kNN candidate triples
+    knn_thresholds: tuple = (0.0, 0.2, 0.4, 0.6, 0.8)  # real-value thresholds of the kNN passes
+    active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
+    threshold: float = 0.5          # real value above which a point is on the final mesh
+    extraction: str = "sheet"       # which real faces make the mesh: "all", "no_interior", "sheet" (dmesh.extract)
+    orient: bool = True             # output the faces' oriented, closed surface (dmesh.extract.surface)
+    save_every: int = 50            # steps between resumable state saves (with a state path)
+    workers: int = 2                # threads of the k-d tree queries
+    kernels: str = "native"         # "native" (C++ expected Chamfer and Delta) or "reference" (torch, for checks)
+    seed: int = 0                   # seed of every random choice
+
+    def __post_init__(self):
+        ints = ("num_init", "num_target", "num_samples", "k_max", "knn_k")
+        for name in ints:
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"PointCloudConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("steps_phase1", "steps_phase2", "real_ramp_steps", "knn_interval", "save_every"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("lr", "update_bound", "max_real", "domain", "alpha_wdt", "alpha_real"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"PointCloudConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("carve", "lambda_weight", "lambda_real_start", "lambda_real_end", "lambda_quality",
+                     "lambda_normal", "prob_threshold", "mass_tol"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
+        from dmesh.extract import MODES
+
+        if self.extraction not in MODES:
+            raise ValueError(f"PointCloudConfig.extraction must be one of {', '.join(MODES)}, got {self.extraction!r}")
+        if self.voronoi not in ("all", "poles"):
+            raise ValueError(f"PointCloudConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
+        if not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"PointCloudConfig.threshold must be in [0, 1), got {self.threshold}")
+        if self.kernels not in KERNELS:
+            raise ValueError(f"PointCloudConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
+        object.__setattr__(self, "knn_thresholds", tuple(float(t) for t in self.knn_thresholds))
+        train = (self.train_phase1,) if isinstance(self.train_phase1, str) else tuple(self.train_phase1)
+        if not train or set(train) - set(TRAIN_ALL):
+            raise ValueError(f"PointCloudConfig.train_phase1 must name some of {', '.join(TRAIN_ALL)}, got {train}")
+        object.__setattr__(self, "train_phase1", train)
+        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
+
+    @classmethod
+    def paper(cls, **overrides) -> "PointCloudConfig":
+        """The published settings (appendix 10.2; upstream exp_2 configs with lr 3e-4)."""
+        return cls(**overrides)
+
+    @classmethod
+    def fast(cls, **overrides) -> "PointCloudConfig":
+        """A CPU budget, about a minute per shape on 2 cores: 40K seeds and their poles (about 90K points;
+        `dmesh.recon.init`) instead of 10K seeds and all their Voronoi vertices, faces far from the input
+        carved (`carve_far_faces`, for holes and open borders), no phase-1 step, 10 phase-2 steps on 50K
+        target points and samples, one-sheet extraction (`dmesh.extract`). Why each choice:
+        docs/preset_choices.md; why no phase-1 step: `python -m eval.bench recipes`."""
+        base = dict(num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=50_000,
+                    num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16, lambda_weight=0.0,
+                    real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def noisy(cls, **overrides) -> "PointCloudConfig":
+        """For noisy scans (not upstream): the `fast` start at 10K seeds, then 20 phase-1 steps that move only
+        the positions, at the paper's lr 3e-4 with the paper's 100K target points and samples, then the fast
+        preset's phase 2. The start puts the mesh
+        vertices on noisy samples; the expected Chamfer's steps pull them toward the surface the samples
+        spread around. On clean input the same steps only cost accuracy (the start's vertices already lie on
+        the surface), so `fast` takes none. Measurements: `python -m eval.bench recipes`."""
+        base = dict(num_init=10_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=100_000,
+                    num_samples=100_000, steps_phase1=20, steps_phase2=10, lr=3e-4, update_bound=3e-4,
+                    train_phase1=("points",), k_max=16, lambda_weight=0.0, real_ramp_steps=0,
+                    freeze_phase2=(0, 5), save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def tiny(cls, **overrides) -> "PointCloudConfig":
+        """Seconds, for tests and the CLI smoke run: 1000 seeds and their poles (~2.5K points), 2 + 15 steps
+        at a tenth of the paper's lr, 4K target points and samples."""
+        base = dict(num_init=1000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=4000,
+                    num_samples=4000, steps_phase1=2, steps_phase2=15, lr=3e-5, update_bound=3e-5, k_max=12, lambda_weight=0.0,
+                    real_ramp_steps=2, freeze_phase2=(0, 8), knn_interval=5, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "PointCloudConfig":
+        """`paper`, `fast`, `noisy` or `tiny`."""
+        if name not in POINTCLOUD_PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(POINTCLOUD_PRESETS)}")
+        return getattr(cls, name)(**overrides)
+
+    def probability_config(self):
+        """The `dmesh.probability.ProbabilityConfig` of these settings."""
+        from dmesh.probability import ProbabilityConfig
+
+        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
+                                 knn_interval=self.knn_interval, knn_k=self.knn_k,
+                                 knn_thresholds=self.knn_thresholds, active_band=self.active_band,
+                                 impl=self.kernels)
+
+    def step_config(self):
+        """The `dmesh.recon.optim.StepConfig` of these settings."""
+        from dmesh.recon.optim import StepConfig
+
+        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real,
+                          grad_clip=self.grad_clip)
+
+
+#: Per preset: (whether it takes gradient steps on positions and weights, how it differs from the paper).
+#: Reports print these beside every DMesh row.
+POINTCLOUD_RECIPES = {
+    "paper": (True, "the published recipe: 10K seeds + all their Voronoi vertices, 1000 phase-1 steps (positions, "
+                    "weights, reals) + 500 phase-2 steps (reals), lr 3e-4, 100K target points and samples, K <= 100. "
+                    "Differs: the 8 corners of [-1.25, 1.25]^3 are added as imaginary points, the mesh is the "
+                    "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
+                    "component; CPU kernels."),
+    "fast": (False, "an initialisation, no phase-1 step: 40K seeds + their poles (not all Voronoi vertices), faces "
+                    "far from the input carved, then 10 phase-2 steps (reals only) on 50K target points and "
+                    "samples, K <= 16, one-sheet extraction. Differs: no position or weight optimisation, 4x the "
+                    "seeds, 10 of the paper's 1500 steps."),
+    "noisy": (True, "not in the paper, for noisy scans: the fast start at 10K seeds, 20 phase-1 steps moving only "
+                    "the positions at lr 3e-4 on 100K target points and samples, then the fast preset's 10 phase-2 "
+                    "steps. On clean input it is several times worse than `fast`."),
+    "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
+}
+
+
+# ------------------------------------------------------------------------------------------- multi-view
+
+INTERIOR_MODES = ("apex", "visible", "both", "sheet", "none")
+INIT_MODES = ("grid", "depth")
+#: The `refine` preset's phase-1 and phase-2 steps and its learning rate (= per-step bound).
+REFINE_STEPS = (10, 5)
+REFINE_LR = 1e-5
+
+
+def _tuple(value, n: int, name: str) -> tuple:
+    """`value` (int or sequence) as a tuple of n ints (an int is repeated)."""
+    if isinstance(value, numbers.Integral):
+        return (int(value),) * n
+    out = tuple(int(v) for v in value)
+    if len(out) != n:
+        raise ValueError(f"MultiViewConfig.{name} needs {n} entries (one per epoch), got {len(out)}")
+    return out
+
+
+@dataclass(frozen=True)
+class MultiViewConfig:
+    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
+
+    init: str = "grid"               # epoch 0 starts from a "grid" (upstream) or the "depth" pixels' DMesh
+    init_points: int = 100_000       # "depth": lifted pixels given to the point-cloud reconstruction
+    init_preset: str = "fast"        # "depth": its `PointCloudConfig` preset
+    grid: int = 20                   # epoch 0: grid^3 real points
+    grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
+    refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
+    voronoi_per_seed: float | None = None  # re-seeds keep <= this many Voronoi vertices per seed (None: all)
+    voronoi: str = "all"            # re-seeds' imaginary points: "all" Voronoi vertices or the seeds' "poles"
+    domain: float = 1.0              # Voronoi vertices outside [-domain, domain]^3 are dropped
+    box: float = 1.25                # points stay in [-b, b]^3, b = min(box, 0.98 x the cameras' box)
+    steps_phase1: tuple = (500, 500, 500, 500)  # per epoch: steps with the soft renderer
+    steps_phase2: tuple = (500, 500, 500, 500)  # per epoch: steps with the tetrahedral renderer
+    lr_first: float = 1e-3           # epoch 0 learning rate (positions, weights; reals: / max_real)
+    bound_first: float = 1e-3        # epoch 0 per-step bound of each coordinate
+    lr: float = 3e-4                 # later epochs' learning rate
+    update_bound: float = 3e-4       # later epochs' per-step bound
+    max_real_first: float = 3e-3     # epoch 0: upstream's real-value scale (reals' lr and bound: lr / it)
+    max_real: float = 3e-3           # later epochs' real-value scale
+    views_per_step: int = 16         # random views rendered per step (upstream batch size)
+    resolution: int | None = None    # images are area-averaged to this side (None: the capture's)
+    lambda_depth: float = 1.0        # weight of the depth channel's L1 (diffuse 1); see `depth_channel`
+    lambda_weight: float = 1e-8      # weight regulariser (power-diagram edge lengths)
+    lambda_real_start: float = 1e-2  # real regulariser coefficient at phase-1 step 0 of each epoch
+    lambda_real_end: float = 1e-3    # ... after `real_ramp_steps`, and in phase 2
+    real_ramp_steps: int = 100       # phase-1 steps of the linear ramp
+    lambda_quality: float = 1e-3     # quality regulariser (aspect ratio x max edge x Lambda)
+    freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
+    alpha_thresh: float = 1e-3       # faces with Lambda_wdt x max(r) at or below it are not drawn
+    edge_width: float = 1.0          # soft renderer: width of the soft band outside each triangle (pixels)
+    band_targets: bool = True        # phase-1 targets get the soft renderer's silhouette band (unbiased fit)
+    alpha_wdt: float = 1000.0        # sigmoid sharpness of Lambda_wdt
+    alpha_real: float = 100.0        # softmin sharpness of Lambda_real
+    knn_interval: int = 10           # kNN candidate triples every this many steps
+    knn_k: int = 8                   # neighbours of the kNN candidate triples
+    active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
+    threshold: float = 0.5           # real value above which a point is on the final mesh
+    interior: str = "apex"           # interior-face removal: one of INTERIOR_MODES
+    select_best: bool = False        # return the epoch whose mesh renders closest to all the images (with
+                                     # init="depth", the start too: info["selected_epoch"] -1)
+    depth_tolerance: float | None = None  # keep only faces within this of the captured depth in some view
+    orient: bool = True              # output the faces' oriented, closed surface (dmesh.extract.surface)
+    save_every: int = 50             # steps between resumable state saves (with a state path)
+    kernels: str = "native"          # Delta recomputation: "native" (C++) or "reference" (torch, for checks)
+    seed: int = 0                    # seed of every random choice
+
+    def __post_init__(self):
+        seeds = tuple(int(s) for s in self.refine_seeds)
+        object.__setattr__(self, "refine_seeds", seeds)
+        n = 1 + len(seeds)
+        object.__setattr__(self, "steps_phase1", _tuple(self.steps_phase1, n, "steps_phase1"))
+        object.__setattr__(self, "steps_phase2", _tuple(self.steps_phase2, n, "steps_phase2"))
+        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
+        if int(self.grid) < 2:
+            raise ValueError(f"MultiViewConfig.grid must be >= 2, got {self.grid}")
+        if any(s < 4 for s in seeds):
+            raise ValueError(f"MultiViewConfig.refine_seeds must all be >= 4, got {seeds}")
+        if any(s < 0 for s in self.steps_phase1 + self.steps_phase2):
+            raise ValueError("MultiViewConfig.steps_phase1 / steps_phase2 must be >= 0")
+        for name in ("views_per_step", "knn_k"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"MultiViewConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("real_ramp_steps", "knn_interval", "save_every"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("grid_extent", "domain", "box", "lr_first", "bound_first", "lr", "update_bound",
+                     "max_real_first", "max_real", "edge_width", "alpha_wdt", "alpha_real"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"MultiViewConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("lambda_depth", "lambda_weight", "lambda_real_start", "lambda_real_end",
+                     "lambda_quality", "alpha_thresh"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.voronoi_per_seed is not None and not self.voronoi_per_seed >= 0:
+            raise ValueError(f"MultiViewConfig.voronoi_per_seed must be >= 0 or None, got {self.voronoi_per_seed}")
+        if self.resolution is not None and int(self.resolution) < 4:
+            raise ValueError(f"MultiViewConfig.resolution must be >= 4 or None, got {self.resolution}")
+        if self.depth_tolerance is not None and not self.depth_tolerance > 0:
+            raise ValueError(f"MultiViewConfig.depth_tolerance must be positive or None, got {self.depth_tolerance}")
+        if self.voronoi not in ("all", "poles"):
+            raise ValueError(f"MultiViewConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
+        if self.init not in INIT_MODES:
+            raise ValueError(f"MultiViewConfig.init must be one of {INIT_MODES}, got {self.init!r}")
+        if int(self.init_points) < 10:
+            raise ValueError(f"MultiViewConfig.init_points must be >= 10, got {self.init_points}")
+        if self.init_preset not in POINTCLOUD_PRESETS:
+            raise ValueError(f"MultiViewConfig.init_preset must be one of {POINTCLOUD_PRESETS}, "
+                             f"got {self.init_preset!r}")
+        if self.interior not in INTERIOR_MODES:
+            raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
+        if not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"MultiViewConfig.threshold must be in [0, 1), got {self.threshold}")
+        if self.kernels not in KERNELS:
+            raise ValueError(f"MultiViewConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
+
+    @property
+    def epochs(self) -> int:
+        return 1 + len(self.refine_seeds)
+
+    @classmethod
+    def paper(cls, **overrides) -> "MultiViewConfig":
+        """The published settings (appendix 10.2; upstream exp_3 thingi/objaverse configs): 4 epochs of
+        500 + 500 steps, 16 views per step at the capture's resolution, real regulariser 1e-2 -> 1e-3 over
+        100 steps (the paper's "1e-2 closed / 1e-3 open" for the first 100 steps; upstream's plant config),
+        diffuse and depth L1 with weight 1 each (upstream's depth is 1 - (ndc_z + 1) / 2 with near 1 and
+        far 3: slope 1.5 / z^2 ~ 0.4 per unit at the object centre; our depth channel's slope is 0.5, see
+        `depth_channel`). Interior faces: upstream's rule ("apex")."""
+        return cls(**overrides)
+
+    @classmethod
+    def fast(cls, **overrides) -> "MultiViewConfig":
+        """The paper's procedure at a CPU budget, 3-4 minutes per shape (64 views at 256 pixels) on 2 cores: a
+        14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples with all their Voronoi vertices, 60 + 20 /
+        40 + 20 / 40 + 20 steps of 6 views, the "both" interior rule, the depth-consistency filter and
+        `select_best`. Why each choice: docs/preset_choices.md; accuracy: reports/table2_multiview.md."""
+        base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(60, 40, 40), steps_phase2=(20, 20, 20),
+                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=None,
+                    lambda_weight=0.0, real_ramp_steps=10, freeze_phase2=(0,), interior="both", select_best=True,
+                    depth_tolerance=0.02, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def depth(cls, **overrides) -> "MultiViewConfig":
+        """Depth pixels first (not upstream): epoch 0 is DMesh's point-cloud fit to 100K lifted depth pixels
+        (`depth_init`, point-cloud `fast` preset), then the multi-view extraction ("both" interior rule at the
+        capture's resolution, the depth-consistency filter). No image-loss step (docs/preset_choices.md)."""
+        base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="both",
+                    depth_tolerance=0.02, select_best=False, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def refine(cls, **overrides) -> "MultiViewConfig":
+        """The `depth` start followed by image-loss steps (not upstream): phase-1 steps with the soft renderer at
+        a small learning rate (the start's points are about 0.01 apart), then phase-2 steps on the reals, and
+        `select_best` with the start as a candidate, so the result is never a mesh that renders farther from
+        the images than the start. For depth maps with noise, where the diffuse images carry the shape's
+        normals. Its measurements: `reports/table2_multiview.md` and `python -m eval.bench refine`."""
+        base = dict(init="depth", refine_seeds=(), steps_phase1=(REFINE_STEPS[0],), steps_phase2=(REFINE_STEPS[1],),
+                    lr_first=REFINE_LR, bound_first=REFINE_LR, max_real_first=3e-3, views_per_step=6,
+                    resolution=None, lambda_weight=0.0, lambda_real_start=1e-3, real_ramp_steps=0,
+                    freeze_phase2=(0,), interior="both", depth_tolerance=0.02, select_best=True, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def tiny(cls, **overrides) -> "MultiViewConfig":
+        """Seconds, for tests: the fast preset's recipe on an 8^3 grid and one re-seed of 300 points (600
+        Voronoi vertices), 30 + 10 and 15 + 10 steps at 48 pixels, depth tolerance 0.1 (about two pixels)."""
+        base = dict(grid=8, refine_seeds=(300,), voronoi_per_seed=2.0, steps_phase1=(30, 15), steps_phase2=(10, 10),
+                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=4, resolution=48,
+                    lambda_weight=0.0, real_ramp_steps=4, freeze_phase2=(0,), interior="both", select_best=True,
+                    depth_tolerance=0.1, save_every=10)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "MultiViewConfig":
+        """`paper`, `fast`, `depth`, `refine` or `tiny`."""
+        if name not in MULTIVIEW_PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(MULTIVIEW_PRESETS)}")
+        return getattr(cls, name)(**overrides)
+
+    def probability_config(self):
+        """The `dmesh.probability.ProbabilityConfig` of these settings."""
+        from dmesh.probability import ProbabilityConfig
+
+        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
+                                 knn_interval=self.knn_interval, knn_k=self.knn_k, active_band=self.active_band,
+                                 impl=self.kernels)
+
+    def step_config(self, epoch: int):
+        """The `dmesh.recon.optim.StepConfig` of `epoch`."""
+        from dmesh.recon.optim import StepConfig
+
+        if epoch == 0:
+            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first)
+        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real)
+
+    def total_steps(self) -> int:
+        return sum(self.steps_phase1) + sum(self.steps_phase2)
+
+
+#: Per preset: (whether it takes image-loss gradient steps, how it differs from the paper). Reports print
+#: these beside every DMesh row.
+MULTIVIEW_RECIPES = {
+    "paper": (True, "the published recipe: a 20^3 grid, then re-seeds of 1K, 3K and 10K surface samples, 500 "
+                    "soft-renderer + 500 tetrahedral-renderer steps per epoch, 16 views per step at the capture's "
+                    "resolution, L1 of diffuse + depth. Differs: silhouette gradients come from the soft "
+                    "renderer's analytic coverage (upstream: a 0.1 x hard-render term), depth channel slope 0.5."),
+    "fast": (True, "the paper's procedure cut to a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1K and 3K "
+                   "samples, 60 + 20 / 40 + 20 / 40 + 20 steps, 6 views per step; interior faces removed by "
+                   "apex and visibility, faces off the captured depth dropped, the epoch whose mesh renders "
+                   "closest to the images kept."),
+    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
+                     "pixels, then the multi-view interior and depth filters; no image-loss step."),
+    "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
+                     "tetrahedral-renderer steps (6 views per step), keeping the start when the steps do not "
+                     "lower the image loss over all views."),
+    "tiny": (True, "tests only: an 8^3 grid and one re-seed of 300 samples at 48 pixels."),
+}
