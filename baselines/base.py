@@ -236,7 +236,9 @@ class Method(abc.ABC):
         """The defaults updated with `config`; raises ValueError on keys the method does not know.
 
         A method whose `default_config` returns a frozen dataclass (DMesh) gets a dataclass back: `config` may
-        then be an instance of it (used as is) or a mapping of overrides.
+        then be an instance of it (used as is) or a mapping of overrides, optionally with a `"preset"` key
+        naming the preset they apply to (the class's `from_preset`, `dmesh.recon.config.Presets`) instead of
+        the default.
         """
         default = self.default_config()
         if dataclasses.is_dataclass(default):
@@ -244,15 +246,13 @@ class Method(abc.ABC):
                 return default
             if dataclasses.is_dataclass(config):
                 return config
-            names = {f.name for f in dataclasses.fields(default)}
-            unknown = sorted(set(config) - names)
-            if unknown:
-                raise ValueError(f"{self.name}: unknown config keys {unknown}; known: {sorted(names)}")
-            return dataclasses.replace(default, **dict(config))
-        unknown = sorted(set(config or {}) - set(default))
-        if unknown:
-            raise ValueError(f"{self.name}: unknown config keys {unknown}; known: {sorted(default)}")
-        default.update(config or {})
+            overrides = dict(config)
+            if "preset" in overrides and hasattr(type(default), "from_preset"):
+                return type(default).from_preset(overrides.pop("preset"), overrides, owner=self.name)
+            known = {f.name for f in dataclasses.fields(default)}
+            return dataclasses.replace(default, **_known(self.name, overrides, known))
+        default = dict(default or {})
+        default.update(_known(self.name, config or {}, set(default)))
         return default
 
     def reconstruct(self, inputs: Inputs, config=None) -> Result:
@@ -296,3 +296,11 @@ def empty_mesh():
     import trimesh
 
     return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
+
+
+def _known(owner: str, config, known: set) -> dict:
+    """`config` as a dict; ValueError naming the keys that are not in `known` (and the known ones)."""
+    unknown = sorted(set(config) - known)
+    if unknown:
+        raise ValueError(f"{owner}: unknown config keys {unknown}; known: {sorted(known)}")
+    return dict(config)

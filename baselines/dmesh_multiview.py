@@ -22,13 +22,10 @@ class DMeshMultiView(DMeshPointCloud):
     name = "dmesh_mv"
     input_kind = "multiview"
 
-    def config_class(self):
-        from dmesh.recon.multiview import MultiViewConfig
-
-        return MultiViewConfig
-
     def default_config(self):
-        return self.config_class().fast()
+        from dmesh.recon.config import MultiViewConfig
+
+        return MultiViewConfig.fast()
 
     def prepare(self) -> None:
         import dmesh.recon.multiview  # noqa: F401  (imports torch and the native module before timing)

@@ -24,29 +24,9 @@ class DMeshPointCloud(Method):
     input_kind = "pointcloud"
 
     def default_config(self):
-        from dmesh.recon.pointcloud import PointCloudConfig
+        from dmesh.recon.config import PointCloudConfig
 
         return PointCloudConfig.fast()
-
-    def config_class(self):
-        """The config dataclass (with `preset(name, **overrides)`); subclasses for other inputs override it."""
-        from dmesh.recon.pointcloud import PointCloudConfig
-
-        return PointCloudConfig
-
-    def resolve_config(self, config):
-        import dataclasses
-
-        cls = self.config_class()
-        if config is not None and not dataclasses.is_dataclass(config) and "preset" in config:
-            overrides = dict(config)
-            preset = overrides.pop("preset")
-            names = {f.name for f in dataclasses.fields(cls)}
-            unknown = sorted(set(overrides) - names)
-            if unknown:
-                raise ValueError(f"{self.name}: unknown config keys {unknown}; known: {sorted(names | {'preset'})}")
-            return cls.preset(str(preset), **overrides)
-        return super().resolve_config(config)
 
     def prepare(self) -> None:
         import dmesh.recon.pointcloud  # noqa: F401  (imports torch and the native module before timing)

@@ -581,25 +581,17 @@ def config_label(overrides: Mapping) -> str:
 
 
 def build_config(method, overrides: Mapping):
-    """(config object, config dict): the method's default config with `overrides` applied.
-
-    Works for a frozen dataclass config (validated again by its __post_init__; the method's own
-    `resolve_config` applies, e.g. DMesh's `preset` key) and for a plain dict.
-    """
+    """(config object, config dict): the method's default config with `overrides` applied by the method's own
+    `resolve_config` (unknown keys raise ValueError; DMesh's `preset` key picks the base). A frozen dataclass
+    config is validated again by its __post_init__; a method without config settings takes any overrides."""
     default = method.default_config()
     overrides = dict(overrides)
-    if dataclasses.is_dataclass(default):
-        cfg = method.resolve_config(overrides) if overrides else default
-        return cfg, dataclasses.asdict(cfg)
-    if default is None:
-        default = {}
-    if not isinstance(default, Mapping):
+    if default is not None and not dataclasses.is_dataclass(default) and not isinstance(default, Mapping):
         raise TypeError(f"method {method.name}: default_config() must return a dataclass or a dict")
-    unknown = set(overrides) - set(default)
-    if unknown and default:
-        raise ValueError(f"method {method.name}: unknown config keys {sorted(unknown)}; known: {sorted(default)}")
-    cfg = {**default, **overrides}
-    return cfg, dict(cfg)
+    if not default and not dataclasses.is_dataclass(default):
+        return dict(overrides), dict(overrides)
+    cfg = method.resolve_config(overrides) if overrides else default
+    return cfg, (dataclasses.asdict(cfg) if dataclasses.is_dataclass(cfg) else dict(cfg))
 
 
 @dataclass(frozen=True)

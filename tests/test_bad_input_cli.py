@@ -210,7 +210,7 @@ CASES = [
     case("bench-set-no-equals", ["bench", "{d}/ok.yaml", "--set", "depth"], "expected KEY=VALUE"),
     case("bench-set-unknown-field", ["bench", "{d}/ok.yaml", "--set", "nope=1"], "unknown sweep field 'nope'"),
     case("bench-set-unknown-config-key", ["bench", "{d}/ok.yaml", "--set", "psr.nope=1", "--work", "{d}/w"],
-         "method psr: unknown config keys ['nope']"),
+         "psr: unknown config keys ['nope']"),
     case("reproduce-tables-missing-yaml", ["reproduce-tables", "--sweep", "{d}/nosuch.yaml", "-o", "{d}/rep"],
          "not found"),
     case("reproduce-tables-unknown-method",

@@ -109,13 +109,6 @@ def test_config_validation():
     assert MultiViewConfig(steps_phase1=7).steps_phase1 == (7,) * 4
 
 
-def test_cli_lists_the_library_presets():
-    from dmesh.recon.multiview import PRESETS
-    from eval.commands._reconstruct_multiview import PRESET_NAMES
-
-    assert set(PRESET_NAMES) == set(PRESETS)
-
-
 # ------------------------------------------------------------------------------------------------ helpers
 
 def test_downsample_is_an_area_average(rng):

@@ -1,6 +1,6 @@
 """Settings of the reconstructions: frozen configs with one comment per field, their presets, and what each
 preset does differently from the paper (its recipe). Torch-free, so the command line lists the preset names
-without importing the library's kernels; `from_preset` is the one way from a preset name and overrides to a
+without importing the library's kernels; `Presets.from_preset` is the one way from a preset name and overrides to a
 config (unknown keys raise ValueError naming the known ones).
 
 - `PointCloudConfig` (`dmesh.recon.pointcloud.reconstruct`): presets `POINTCLOUD_PRESETS`.
@@ -22,25 +22,48 @@ POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "tiny")
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
 
-def from_preset(cls, preset: str | None = None, overrides: Mapping | None = None, *, owner: str = ""):
-    """`cls.preset(preset, **overrides)` (default preset `DEFAULT_PRESET`) for a config class of this module.
+def as_tuple(value, cast, name: str) -> tuple:
+    """A tuple field's value as a tuple of `cast` values: a single number becomes a 1-tuple (so `--set
+    freeze_phase2=5` and `freeze_phase2: [5]` mean the same); ValueError naming the field for text or
+    anything that is not a number or a sequence of numbers."""
+    if isinstance(value, numbers.Number) and not isinstance(value, bool):
+        value = (value,)
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise ValueError(f"{name} expects a number or a list of numbers like [1, 2], got {value!r}")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, numbers.Number):
+            raise ValueError(f"{name} expects a number or a list of numbers like [1, 2], got {value!r}")
+        if cast is int and float(v) != int(v):
+            raise ValueError(f"{name} expects integers, got {v!r}")
+        out.append(cast(v))
+    return tuple(out)
 
-    Raises:
-        ValueError: an unknown preset, or override keys that are not fields of `cls` (the message names the
-            known ones; `owner` prefixes it, e.g. a harness method's name).
-    """
-    overrides = dict(overrides or {})
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"{owner + ': ' if owner else ''}unknown config keys {unknown}; known: {sorted(known)}")
-    return cls.preset(str(preset or DEFAULT_PRESET), **overrides)
+
+class Presets:
+    """Mixin of the config classes: `from_preset`, the one way from a preset name and overrides to a config
+    (the CLI, the harness methods and the sweeps all use it)."""
+
+    @classmethod
+    def from_preset(cls, preset: str | None = None, overrides: Mapping | None = None, *, owner: str = ""):
+        """`cls.preset(preset, **overrides)` (default preset `DEFAULT_PRESET`).
+
+        Raises:
+            ValueError: an unknown preset, or override keys that are not fields of the class (the message names
+                the known ones; `owner` prefixes it, e.g. a harness method's name).
+        """
+        overrides = dict(overrides or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(overrides) - known)
+        if unknown:
+            raise ValueError(f"{owner + ': ' if owner else ''}unknown config keys {unknown}; known: {sorted(known)}")
+        return cls.preset(str(preset or DEFAULT_PRESET), **overrides)
 
 
 # ------------------------------------------------------------------------------------------- point clouds
 
 @dataclass(frozen=True)
-class PointCloudConfig:
+class PointCloudConfig(Presets):
     """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
 
     num_init: int = 10_000          # input points used as real seeds
@@ -107,12 +130,14 @@ class PointCloudConfig:
             raise ValueError(f"PointCloudConfig.threshold must be in [0, 1), got {self.threshold}")
         if self.kernels not in KERNELS:
             raise ValueError(f"PointCloudConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
-        object.__setattr__(self, "knn_thresholds", tuple(float(t) for t in self.knn_thresholds))
+        object.__setattr__(self, "knn_thresholds",
+                           as_tuple(self.knn_thresholds, float, "PointCloudConfig.knn_thresholds"))
         train = (self.train_phase1,) if isinstance(self.train_phase1, str) else tuple(self.train_phase1)
         if not train or set(train) - set(TRAIN_ALL):
             raise ValueError(f"PointCloudConfig.train_phase1 must name some of {', '.join(TRAIN_ALL)}, got {train}")
         object.__setattr__(self, "train_phase1", train)
-        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
+        object.__setattr__(self, "freeze_phase2",
+                           as_tuple(self.freeze_phase2, int, f"{type(self).__name__}.freeze_phase2"))
 
     @classmethod
     def paper(cls, **overrides) -> "PointCloudConfig":
@@ -210,17 +235,17 @@ REFINE_LR = 1e-5
 
 
 def _tuple(value, n: int, name: str) -> tuple:
-    """`value` (int or sequence) as a tuple of n ints (an int is repeated)."""
+    """`value` (int or sequence) as a tuple of n ints (an int is repeated, one per epoch)."""
     if isinstance(value, numbers.Integral):
         return (int(value),) * n
-    out = tuple(int(v) for v in value)
+    out = as_tuple(value, int, f"MultiViewConfig.{name}")
     if len(out) != n:
         raise ValueError(f"MultiViewConfig.{name} needs {n} entries (one per epoch), got {len(out)}")
     return out
 
 
 @dataclass(frozen=True)
-class MultiViewConfig:
+class MultiViewConfig(Presets):
     """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
 
     init: str = "grid"               # epoch 0 starts from a "grid" (upstream) or the "depth" pixels' DMesh
@@ -269,12 +294,13 @@ class MultiViewConfig:
     seed: int = 0                    # seed of every random choice
 
     def __post_init__(self):
-        seeds = tuple(int(s) for s in self.refine_seeds)
+        seeds = as_tuple(self.refine_seeds, int, "MultiViewConfig.refine_seeds")
         object.__setattr__(self, "refine_seeds", seeds)
         n = 1 + len(seeds)
         object.__setattr__(self, "steps_phase1", _tuple(self.steps_phase1, n, "steps_phase1"))
         object.__setattr__(self, "steps_phase2", _tuple(self.steps_phase2, n, "steps_phase2"))
-        object.__setattr__(self, "freeze_phase2", tuple(int(s) for s in self.freeze_phase2))
+        object.__setattr__(self, "freeze_phase2",
+                           as_tuple(self.freeze_phase2, int, f"{type(self).__name__}.freeze_phase2"))
         if int(self.grid) < 2:
             raise ValueError(f"MultiViewConfig.grid must be >= 2, got {self.grid}")
         if any(s < 4 for s in seeds):

@@ -1,12 +1,11 @@
-"""`dmesh reconstruct pointcloud INPUT -o OUT.obj`: DMesh reconstruction of a point cloud.
+"""`dmesh reconstruct pointcloud|multiview INPUT -o OUT.obj`: DMesh reconstruction of a point cloud or of
+multi-view images.
 
-(`dmesh reconstruct multiview DIR -o OUT.obj` reconstructs from a `dmesh capture` folder instead; see
-`eval.commands._reconstruct_multiview`.)
-
-INPUT is a point cloud (`.npy` with 3 or 6 columns, `.xyz`/`.txt`/`.pts` text with 3 or 6 columns, or a
+For `pointcloud`, INPUT is a point cloud (`.npy` with 3 or 6 columns, `.xyz`/`.txt`/`.pts` text with 3 or 6 columns, or a
 `.ply` without faces, optionally with nx/ny/nz) or a mesh (OBJ, OFF, STL, GLB, or PLY with faces), which is
-sampled (`--samples` area-uniform points with face normals). The output mesh is in INPUT's frame;
-`OUT.timings.json` beside it holds the seconds per stage, the config and the final figures. Every file is
+sampled (`--samples` area-uniform points with face normals). For `multiview`, INPUT is a capture folder
+written by `dmesh capture` (its `views.npz`: diffuse, depth, mask, cameras). The output mesh is in INPUT's
+frame; `OUT.timings.json` beside it holds the seconds per stage, the config and the final figures. Every file is
 written under a temporary name and renamed.
 """
 from __future__ import annotations
@@ -25,20 +24,16 @@ POINT_SUFFIXES = (".npy", ".xyz", ".txt", ".pts")
 MESH_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
 
 
-#: The presets of `dmesh.recon.pointcloud.PRESETS`, listed here so building the parser imports no torch
-#: (a test checks the two agree).
-PRESET_NAMES = ("fast", "paper", "noisy", "tiny")
-
 
 def add_arguments(p):
     p.add_argument("kind", choices=["pointcloud", "multiview"], help="input kind")
     p.add_argument("input", metavar="INPUT", help="points (.npy/.xyz/.txt/.pts/.ply) or a mesh (sampled); "
                    "multiview: a folder written by `dmesh capture`")
     p.add_argument("-o", "--out", required=True, help="output mesh (.obj, .ply, .off or .stl)")
-    from eval.commands._reconstruct_multiview import PRESET_NAMES as MULTIVIEW_PRESETS
+    from dmesh.recon.config import DEFAULT_PRESET, MULTIVIEW_PRESETS, POINTCLOUD_PRESETS  # torch-free
 
-    names = PRESET_NAMES + tuple(n for n in MULTIVIEW_PRESETS if n not in PRESET_NAMES)
-    p.add_argument("--preset", choices=names, default="fast",
+    names = POINTCLOUD_PRESETS + tuple(n for n in MULTIVIEW_PRESETS if n not in POINTCLOUD_PRESETS)
+    p.add_argument("--preset", choices=names, default=DEFAULT_PRESET,
                    help="settings preset (default: fast; noisy: point clouds only, for noisy scans; depth and "
                    "refine: multiview only, DMesh's point-cloud fit to the lifted depth pixels, refine with "
                    "image-loss steps after it)")
@@ -180,14 +175,21 @@ def config_error(exc: Exception, overrides: dict) -> str:
     return msg if isinstance(exc, ValueError) else f"bad config value: {msg}"
 
 
-def build_config(preset: str, seed: int, steps: int | None, normals: bool, overrides: dict):
-    from dmesh.recon.pointcloud import PointCloudConfig
+def build_config(kind: str, preset: str, seed: int, overrides: dict, steps: int | None = None,
+                 normals: bool = False):
+    """The `PointCloudConfig` or `MultiViewConfig` of `kind` from a preset, the seed, `--steps` / `--normals`
+    (point clouds only) and `--set` overrides (the config's `from_preset`); one-line ValueError for an
+    unknown preset or key, a flag the kind does not take, or a bad value."""
+    from dmesh.recon.config import MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, MultiViewConfig, PointCloudConfig
 
-    fields = {f.name for f in dataclasses.fields(PointCloudConfig)}
-    unknown = sorted(set(overrides) - fields)
-    if unknown:
-        raise ValueError(f"unknown config keys {unknown}; known: {sorted(fields)}")
+    cls, presets = (PointCloudConfig, POINTCLOUD_PRESETS) if kind == "pointcloud" else (MultiViewConfig,
+                                                                                     MULTIVIEW_PRESETS)
+    if preset not in presets:
+        other = "multi-view" if kind == "pointcloud" else "point-cloud"
+        raise ValueError(f"preset {preset!r} is for {other} input only; {kind} input takes {', '.join(presets)}")
     values = {"seed": seed}
+    if kind == "multiview" and (normals or steps is not None):
+        raise ValueError("--normals and --steps apply to point clouds only (use --set for multi-view steps)")
     if steps is not None:
         if steps < 0:
             raise ValueError(f"--steps must be >= 0, got {steps}")
@@ -195,14 +197,29 @@ def build_config(preset: str, seed: int, steps: int | None, normals: bool, overr
         values["steps_phase2"] = steps - values["steps_phase1"]
     if normals:
         values["lambda_normal"] = 1e-3
-    for key in ("freeze_phase2", "knn_thresholds"):
-        if key in overrides and not isinstance(overrides[key], (list, tuple)):
-            overrides[key] = [overrides[key]]
     values.update(overrides)
     try:
-        return PointCloudConfig.preset(preset, **values)
+        return cls.from_preset(preset, values)
     except (TypeError, ValueError) as exc:
         raise ValueError(config_error(exc, overrides)) from None
+
+
+def read_capture(directory: str | Path):
+    """The `datasets.capture.MultiView` in `directory`; one-line FileNotFoundError / ValueError otherwise."""
+    from datasets.capture import MultiView
+
+    d = Path(directory)
+    if not d.exists():
+        raise FileNotFoundError(f"{d}: no such folder")
+    if not d.is_dir():
+        raise ValueError(f"{d}: not a folder (give the capture folder written by `dmesh capture`)")
+    if not (d / "views.npz").is_file():
+        raise ValueError(f"{d}: not a capture folder (no views.npz; write one with `dmesh capture MESH -o {d}`)")
+    try:
+        return MultiView.load(d)
+    except Exception as exc:  # numpy and zipfile raise several types for corrupt or incomplete archives
+        msg = " ".join(f"{type(exc).__name__}: {exc}".split())
+        raise ValueError(f"{d / 'views.npz'}: cannot read ({msg})") from None
 
 
 def write_outputs(out: Path, res, cfg, report: dict) -> None:
@@ -223,37 +240,40 @@ def write_outputs(out: Path, res, cfg, report: dict) -> None:
 
 
 def run(args) -> int:
-    from dmesh.recon.pointcloud import reconstruct
     from eval.progress import progress
 
     out = check_args(args)
+    cfg = build_config(args.kind, args.preset, args.seed, _parse_overrides(args.set), args.steps, args.normals)
     if args.kind == "multiview":
-        from eval.commands._reconstruct_multiview import run_multiview
+        from dmesh.recon.multiview import reconstruct as reconstruct_views
 
-        return run_multiview(args, _parse_overrides(args.set))
-    if args.preset not in PRESET_NAMES:
-        raise ValueError(f"preset {args.preset!r} is for multi-view input only; point clouds take "
-                         f"{', '.join(PRESET_NAMES)}")
-    cfg = build_config(args.preset, args.seed, args.steps, args.normals, _parse_overrides(args.set))
-    points, normals = read_points(args.input, args.samples, args.seed)
-    if args.normals and normals is None:
-        raise ValueError(f"{args.input}: --normals given but the input has no normals")
+        views = read_capture(args.input)
+        total = cfg.total_steps()
+        call = lambda **kw: reconstruct_views(views, cfg, **kw)  # noqa: E731
+    else:
+        from dmesh.recon.pointcloud import reconstruct as reconstruct_points
 
-    total = cfg.steps_phase1 + cfg.steps_phase2
+        points, normals = read_points(args.input, args.samples, args.seed)
+        if args.normals and normals is None:
+            raise ValueError(f"{args.input}: --normals given but the input has no normals")
+        total = cfg.steps_phase1 + cfg.steps_phase2
+        call = lambda **kw: reconstruct_points(points, normals, cfg, **kw)  # noqa: E731
+
     bar = progress(total=total, desc="dmesh", unit="step")
-    done = {"n": 0}
 
     def on_step(rec: dict) -> None:
         if "stage" in rec:
             bar.set_description(f"dmesh {rec['stage']}")
             return
         bar.update(1)
-        done["n"] += 1
         bar.set_postfix(loss=f"{rec['loss']:.4g}", faces=rec["faces"], refresh=False)
 
     try:
-        res = reconstruct(points, normals, cfg, callback=on_step, state_path=args.state)
+        res = call(callback=on_step, state_path=args.state)
     finally:
         bar.close()
-    write_outputs(out, res, cfg, {"input": str(args.input), "output": str(out), "preset": args.preset})
+    report = {"input": str(args.input), "output": str(out), "preset": args.preset}
+    if args.kind == "multiview":
+        report["kind"] = "multiview"
+    write_outputs(out, res, cfg, report)
     return 0
