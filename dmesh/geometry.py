@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import torch
 
-#: Smallest denominator (in squared length units of a unit domain) before clamping.
-EPS = 1e-18
+from dmesh.tolerances import GEOMETRY_EPS
 
 
-def _safe(x: torch.Tensor, eps: float = EPS) -> torch.Tensor:
+def _safe(x: torch.Tensor, eps: float = GEOMETRY_EPS) -> torch.Tensor:
     """x with |x| >= eps, keeping its sign (0 maps to +eps)."""
     return torch.where(x.abs() < eps, torch.full_like(x, eps) * torch.where(x < 0, -1.0, 1.0), x)
 
@@ -50,7 +49,7 @@ def bisector_distance(p_i: torch.Tensor, w_i: torch.Tensor, p_j: torch.Tensor, w
         p_i, p_j, s: (..., 3); w_i, w_j: (...). Returns: (...) float64.
     """
     d = p_j.double() - p_i.double()
-    len2 = (d * d).sum(-1).clamp_min(EPS)
+    len2 = (d * d).sum(-1).clamp_min(GEOMETRY_EPS)
     length = len2.sqrt()
     t_len = 0.5 * (length - (w_j.double() - w_i.double()) / length)
     return (((s.double() - p_i.double()) * d).sum(-1) / length - t_len).abs()
@@ -60,7 +59,7 @@ def face_normals(points: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """(F, 3) float64 unit normals (p_b - p_a) x (p_c - p_a) / |.| of faces (F, 3); zero-safe."""
     p = points.double()
     n = torch.linalg.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
-    return n / (n * n).sum(-1, keepdim=True).clamp_min(EPS).sqrt()
+    return n / (n * n).sum(-1, keepdim=True).clamp_min(GEOMETRY_EPS).sqrt()
 
 
 def dual_lines(points: torch.Tensor, weights: torch.Tensor, faces: torch.Tensor):
@@ -84,11 +83,11 @@ def dual_lines(points: torch.Tensor, weights: torch.Tensor, faces: torch.Tensor)
     rb = (e1 * e1).sum(-1) - (w[faces[:, 1]] - w[faces[:, 0]])
     rc = (e2 * e2).sum(-1) - (w[faces[:, 2]] - w[faces[:, 0]])
     e11, e12, e22 = (e1 * e1).sum(-1), (e1 * e2).sum(-1), (e2 * e2).sum(-1)
-    den = 2.0 * area2.clamp_min(EPS)
+    den = 2.0 * area2.clamp_min(GEOMETRY_EPS)
     alpha = (rb * e22 - rc * e12) / den
     beta = (rc * e11 - rb * e12) / den
     origin = a + alpha[:, None] * e1 + beta[:, None] * e2
-    direction = n / area2.clamp_min(EPS).sqrt()[:, None]
+    direction = n / area2.clamp_min(GEOMETRY_EPS).sqrt()[:, None]
     return origin, direction, area2
 
 
@@ -108,9 +107,9 @@ def line_segment_distance(origin: torch.Tensor, direction: torch.Tensor, a: torc
     ray_dir = b - (b * u).sum(-1, keepdim=True) * u
     e = torch.where(is_ray[..., None], ray_dir, pb_seg - pa)
     ee = (e * e).sum(-1)
-    t = -(pa * e).sum(-1) / ee.clamp_min(EPS)
+    t = -(pa * e).sum(-1) / ee.clamp_min(GEOMETRY_EPS)
     t = t.clamp_min(0.0)
     t = torch.where(is_ray, t, t.clamp_max(1.0))
-    t = torch.where(ee > EPS, t, torch.zeros_like(t))
+    t = torch.where(ee > GEOMETRY_EPS, t, torch.zeros_like(t))
     q = pa + t[..., None] * e
-    return (q * q).sum(-1).clamp_min(EPS * EPS).sqrt()
+    return (q * q).sum(-1).clamp_min(GEOMETRY_EPS * GEOMETRY_EPS).sqrt()

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dmesh import native
 from dmesh.probability import FaceProbabilities, ProbabilityConfig, ProbabilityState, face_probabilities
 from dmesh.wdt import PowerDiagram
 
@@ -54,12 +55,8 @@ class DMesh:
 
     @staticmethod
     def _vector(v, n: int, name: str, dtype) -> torch.Tensor:
-        t = torch.tensor(np.asarray(v.detach() if torch.is_tensor(v) else v), dtype=dtype)
-        if t.shape != (n,):
-            raise ValueError(f"{name} must have shape ({n},), got {tuple(t.shape)}")
-        if not torch.isfinite(t).all():
-            raise ValueError(f"{name} must be finite")
-        return t
+        """(n,) tensor of `dtype`: a copy of v after `native.as_weights` checked its shape and values."""
+        return torch.tensor(native.as_weights(v, n, name), dtype=dtype)
 
     def __len__(self) -> int:
         return len(self.points)

@@ -223,13 +223,16 @@ def _i32(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=INDEX_DTYPE)
 
 
-class RawSoftRender(NamedTuple):
-    diffuse: np.ndarray    # (H, W) float32
-    depth: np.ndarray      # (H, W) float32
-    alpha: np.ndarray      # (H, W) float32
-    frag_face: np.ndarray  # (K,) int32
-    pix_range: np.ndarray  # (H, W, 2) int32
-    stats: dict            # num_drawn, num_bins, num_fragments
+#: The fields both renderers' outputs start with: diffuse, depth and alpha (H, W) float32 images, and
+#: frag_face (K,) int32, the face of each composited fragment.
+_IMAGE_FIELDS = [("diffuse", np.ndarray), ("depth", np.ndarray), ("alpha", np.ndarray), ("frag_face", np.ndarray)]
+#: The soft rasteriser's output: the images, pix_range (H, W, 2) int32 (first fragment, count) per pixel,
+#: stats (num_drawn, num_bins, num_fragments).
+RawSoftRender = NamedTuple("RawSoftRender", _IMAGE_FIELDS + [("pix_range", np.ndarray), ("stats", dict)])
+#: The tet renderer's output: the images, frag_diffuse and frag_depth (K,) float32, pix_range as above,
+#: stats (num_steps, num_fragments).
+RawTetRender = NamedTuple("RawTetRender", _IMAGE_FIELDS + [
+    ("frag_diffuse", np.ndarray), ("frag_depth", np.ndarray), ("pix_range", np.ndarray), ("stats", dict)])
 
 
 def soft_render_forward(verts, faces, opacity, world_to_camera, fov_y: float, height: int, width: int,
@@ -252,17 +255,6 @@ def soft_render_backward(verts, faces, opacity, world_to_camera, fov_y: float, h
         float(near), float(edge_width), float(min_opacity), float(t_min), int(num_threads), _i32(frag_face),
         _i32(pix_range), _f32(grad_diffuse), _f32(grad_depth),
         _f32(grad_alpha))
-
-
-class RawTetRender(NamedTuple):
-    diffuse: np.ndarray       # (H, W) float32
-    depth: np.ndarray         # (H, W) float32
-    alpha: np.ndarray         # (H, W) float32
-    frag_face: np.ndarray     # (K,) int32
-    frag_diffuse: np.ndarray  # (K,) float32
-    frag_depth: np.ndarray    # (K,) float32
-    pix_range: np.ndarray     # (H, W, 2) int32
-    stats: dict               # num_steps, num_fragments
 
 
 def tet_render_forward(verts, tets, faces, face_tets, opacity, world_to_camera, fov_y: float, height: int,

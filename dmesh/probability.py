@@ -3,11 +3,12 @@
 Letters: N points, T tets, F faces of the current WDT, C candidate faces not in the WDT.
 
 One pass: WDT -> power diagram -> neighbour cache and candidates -> per-vertex distances -> Delta ->
-Lambda. The per-vertex distances come from one fused native kernel per kind of face (argmin search and
-distance in one forward call, analytic gradient in one backward call, `native/src/delta_recompute.h`);
-the argmin indices are constants and gradients reach positions and weights through bisector planes,
-orthocentres, dual lines and hull-ray directions. `ProbabilityConfig.impl = "reference"` selects the torch
-recomputation of `dmesh.reference.probability` instead (same values and gradients, several times slower).
+Lambda. The per-vertex distances come from `dmesh.deltas`: one fused native kernel per kind of face
+(argmin search and distance in one forward call, analytic gradient in one backward call,
+`native/src/delta_recompute.h`); the argmin indices are constants and gradients reach positions and weights
+through bisector planes, orthocentres, dual lines and hull-ray directions. `ProbabilityConfig.impl =
+"reference"` selects the torch recomputation of `dmesh.reference.probability` instead (same values and
+gradients, several times slower).
 
 - Faces of the WDT: Delta = mean over the 3 vertices i of the distance from the sample point of the face's
   dual edge (midpoint, or `ray_length` out along a hull ray) to the nearest bisector plane H(i, j) with j a
@@ -37,22 +38,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import time
-from contextlib import contextmanager
-
 import numpy as np
 import torch
-
 from torch.autograd.function import once_differentiable
 
 from dmesh import native
 from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
-from dmesh.reference import probability as ref_prob
+from dmesh.checks import require_positive
+# The per-vertex distances live in dmesh.deltas; their names stay importable from here.
+from dmesh.deltas import (IMPLS, check_impl, delta_diagram, existing_deltas, nonexisting_deltas,  # noqa: F401
+                          orthocentres, row_mean)
 from dmesh.reference.probability import dual_edges  # noqa: F401 (kept importable from here)
+from dmesh.timing import stage
 from dmesh.wdt import Csr, PowerDiagram, face_keys, triangulate
-
-#: Implementations of the per-vertex distances: fused native kernels, or the torch reference.
-IMPLS = ("native", "reference")
 
 
 @dataclass(frozen=True)
@@ -77,10 +75,8 @@ class ProbabilityConfig:
     full_search_every: int = 1
 
     def __post_init__(self):
-        for name in ("alpha_wdt", "alpha_real", "ray_length", "domain_scale", "alpha_pc"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ProbabilityConfig.{name} must be positive, got {getattr(self, name)}")
-        _check_impl(self.impl)
+        require_positive(self, ("alpha_wdt", "alpha_real", "ray_length", "domain_scale", "alpha_pc"))
+        check_impl(self.impl)
         if self.full_search_every < 1:
             raise ValueError(f"ProbabilityConfig.full_search_every must be >= 1, got {self.full_search_every}")
         if self.knn_interval < 0 or self.knn_k < 2:
@@ -93,136 +89,6 @@ class ProbabilityConfig:
     @property
     def ray(self) -> float:
         return self.ray_length * self.domain_scale
-
-
-class _ExistingDeltas(torch.autograd.Function):
-    """(K, 3) float64 per-vertex delta of WDT faces: fused native search and distances, native backward."""
-
-    @staticmethod
-    def forward(ctx, points, weights, diagram, neighbours, face_ids, ray_length, upper, hint, record):
-        j, dist = native.existing_delta_forward(diagram, face_ids, neighbours.offsets, neighbours.indices,
-                                                ray_length, hint)
-        if record is not None:
-            record["neighbour"] = j
-        # Rows whose mean delta reaches `upper` keep their value without a gradient (see existing_deltas).
-        active = None if upper is None else _row_mean(dist) < upper
-        ctx.saved = (diagram, face_ids, j, active, ray_length, points.dtype, weights.dtype)
-        return torch.from_numpy(dist)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad):
-        # One gradient per forward input: points, weights, then None for diagram, neighbours, face_ids,
-        # ray_length, upper, hint, record.
-        diagram, face_ids, j, active, ray_length, p_dtype, w_dtype = ctx.saved
-        gp, gw = native.existing_delta_backward(diagram, face_ids, j, grad.numpy(), active, ray_length)
-        return (torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), *([None] * 7))
-
-
-class _CandidateDeltas(torch.autograd.Function):
-    """(C, 3) float64 per-vertex line-to-cell distance of candidates: fused native search and distances,
-    native backward."""
-
-    @staticmethod
-    def forward(ctx, points, weights, diagram, cand, ray_length, band, hint, record):
-        edge, crosses, dist = native.candidate_delta_forward(diagram, cand, ray_length, hint)
-        if record is not None:
-            record["edge"] = edge
-        active = None if band is None else _row_mean(dist) < band
-        ctx.saved = (diagram, cand, edge, crosses, active, points.dtype, weights.dtype)
-        return torch.from_numpy(dist)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad):
-        # One gradient per forward input: points, weights, then None for diagram, cand, ray_length, band,
-        # hint, record.
-        diagram, cand, edge, crosses, active, p_dtype, w_dtype = ctx.saved
-        gp, gw = native.candidate_delta_backward(diagram, cand, edge, crosses, grad.numpy(), active)
-        return (torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), *([None] * 6))
-
-
-class _Orthocentres(torch.autograd.Function):
-    """(T, 3) float64 orthocentres of a `delta_diagram` handle's tets: the forward returns those the handle
-    computed (no recomputation), the backward applies the native orthocentre adjoint."""
-
-    @staticmethod
-    def forward(ctx, points, weights, diagram):
-        ctx.saved = (diagram, points.dtype, weights.dtype)
-        return torch.from_numpy(diagram.orthocentres)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad):
-        diagram, p_dtype, w_dtype = ctx.saved
-        gp, gw = native.orthocentre_backward(diagram, grad.numpy())
-        return torch.from_numpy(gp).to(p_dtype), torch.from_numpy(gw).to(w_dtype), None
-
-
-def orthocentres(points: torch.Tensor, weights: torch.Tensor, diagram) -> torch.Tensor:
-    """(T, 3) float64 orthocentres of the tets of `diagram` (from `delta_diagram(points, weights, pd)`, whose
-    points and weights these must be), differentiable with respect to points and weights; equal to
-    `dmesh.geometry.orthocentres(points, weights, pd.tets)` except that degenerate tets (|det| < 1e-18)
-    pass no gradient."""
-    if diagram.num_points != len(points):
-        raise ValueError(f"the diagram has {diagram.num_points} points, got {len(points)}")
-    return _Orthocentres.apply(points, weights, diagram)
-
-
-def delta_diagram(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram):
-    """The native handle the fused kernels share in one pass: `pd`'s combinatorics with the geometry
-    recomputed from (points, weights)."""
-    p = native.as_points(points)
-    return native.delta_diagram(p, native.as_weights(weights, len(p)), pd)
-
-
-def _check_impl(impl: str) -> None:
-    if impl not in IMPLS:
-        raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
-
-
-def existing_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, neighbours: Csr,
-                    ray_length: float, upper: float | None = None,
-                    face_ids: np.ndarray | None = None, impl: str = "native", diagram=None, hint=None,
-                    record: dict | None = None) -> torch.Tensor:
-    """(K, 3) float64 per-vertex delta of WDT faces `face_ids` ((K,) ints; None: all F faces): distance of
-    the face's dual-edge sample to the nearest cached bisector plane of the vertex's reduced cell;
-    `ray_length` where a vertex has no such plane.
-
-    `pd` must be the power diagram of (points, weights). Faces whose mean delta is at least `upper` (where
-    Lambda_wdt's clamp stops every gradient) keep their value without a gradient. `impl`: "native" (fused
-    kernel) or "reference" (native search, torch recomputation; `dmesh.reference.probability`). Native only:
-    `diagram`, this pass's `delta_diagram` (made here when None); `hint`, None or (K, 3) ints, per vertex
-    `native.SEARCH` or the neighbour to reuse without searching (the coherent pass); `record`, a dict that
-    receives the chosen neighbours as record["neighbour"] ((K, 3) int32, -1: none).
-    """
-    _check_impl(impl)
-    if impl == "reference":
-        return ref_prob.existing_deltas(points, weights, pd, neighbours, ray_length, upper, face_ids)
-    ids = np.arange(len(pd.faces), dtype=np.int32) if face_ids is None else np.asarray(face_ids)
-    diagram = delta_diagram(points, weights, pd) if diagram is None else diagram
-    return _ExistingDeltas.apply(points, weights, diagram, neighbours, ids.astype(np.int32, copy=False),
-                                 float(ray_length), upper, hint, record)
-
-
-def nonexisting_deltas(points: torch.Tensor, weights: torch.Tensor, pd: PowerDiagram, faces: np.ndarray,
-                       ray_length: float, band: float | None = None, impl: str = "native",
-                       diagram=None, hint=None, record: dict | None = None) -> torch.Tensor:
-    """(C, 3) float64 per-vertex distance between each candidate's dual line and the vertex's power cell
-    (0 where the line crosses it). Candidates must not be WDT faces and their vertices must own cells.
-    Collinear or coincident candidates get `ray_length` (no gradient). Faces whose mean distance is at
-    least `band` keep their value without a gradient (Lambda_wdt < sigmoid(-alpha band) there). `impl` as in
-    `existing_deltas`; so are `diagram`, `hint` (per vertex the cell edge, a WDT face id, to reuse) and
-    `record` (receives record["edge"], (C, 3) int32 nearest cell edges, -1 where none or crossing)."""
-    _check_impl(impl)
-    if impl == "reference":
-        return ref_prob.nonexisting_deltas(points, weights, pd, faces, ray_length, band)
-    faces = np.asarray(faces).reshape(-1, 3)
-    if len(faces) == 0:
-        return torch.full((0, 3), float(ray_length), dtype=torch.float64)
-    diagram = delta_diagram(points, weights, pd) if diagram is None else diagram
-    return _CandidateDeltas.apply(points, weights, diagram, faces.astype(np.int32, copy=False),
-                                  float(ray_length), band, hint, record)
 
 
 def dmin(values: torch.Tensor, alpha: float) -> torch.Tensor:
@@ -246,7 +112,7 @@ class _Lambda(torch.autograd.Function):
     def forward(ctx, pv_wdt, pv_non, reals, faces, alpha, alpha_real, dtype):
         # Column arithmetic throughout: NumPy's reductions along a length-3 axis are several times slower.
         nw = len(pv_wdt)
-        delta = np.concatenate([_row_mean(pv_wdt.detach().numpy()), -_row_mean(pv_non.detach().numpy())])
+        delta = np.concatenate([row_mean(pv_wdt.detach().numpy()), -row_mean(pv_non.detach().numpy())])
         upper = 10.0 / alpha
         passes = delta <= upper                              # where the clamp lets the gradient through
         with np.errstate(over="ignore"):  # z <= 10; exp(-z) overflows to inf only where sigmoid(z) is 0
@@ -290,11 +156,6 @@ class _Lambda(torch.autograd.Function):
             g_reals = g_reals.to(r_dtype)
         return (torch.from_numpy(g_pv_w).to(dt_w), torch.from_numpy(g_pv_n).to(dt_n), g_reals, None, None, None,
                 None)
-
-
-def _row_mean(a: np.ndarray) -> np.ndarray:
-    """(M,) mean of the rows of a (M, 3) array: (a0 + a1 + a2) / 3, the order torch's mean(1) adds in."""
-    return (a[:, 0] + a[:, 1] + a[:, 2]) / 3.0
 
 
 def _numpy_dtype(dtype: torch.dtype):
@@ -400,19 +261,6 @@ class _Coherence:
         self.cache_lengths = np.diff(cache.offsets)
 
 
-@contextmanager
-def _stage(timings: dict | None, name: str):
-    """Adds the wall time of the block to timings[name] and the process CPU time (all threads) to
-    timings[name + "_cpu"] (seconds) when timings is a dict."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    try:
-        yield
-    finally:
-        if timings is not None:
-            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
-            timings[name + "_cpu"] = timings.get(name + "_cpu", 0.0) + time.process_time() - c0
-
-
 def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch.Tensor | None,
                        state: ProbabilityState, extra_candidates: np.ndarray | None = None,
                        timings: dict | None = None) -> FaceProbabilities:
@@ -430,12 +278,12 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
     n = len(points)
     if n != state.num_points:
         raise ValueError(f"the phase state was made for {state.num_points} points, got {n}; start a new phase")
-    with _stage(timings, "wdt"):
+    with stage(timings, "wdt"):
         tri = triangulate(points, weights)
-    with _stage(timings, "power_diagram"):
+    with stage(timings, "power_diagram"):
         pd = PowerDiagram(points, weights, tri.tets, tri.neighbors)
     coherent = cfg.impl == "native" and cfg.full_search_every > 1
-    with _stage(timings, "candidates"):
+    with stage(timings, "candidates"):
         cache = state.cache.update(pd.point_neighbors)
         keys = face_keys(pd.faces, n)
         # kind="stable" is NumPy's radix sort for integers: about 2x faster here than the default quicksort.
@@ -445,12 +293,12 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
         if extra_candidates is not None:
             state.candidates.add(extra_candidates)
     if cfg.knn_interval and state.passes % cfg.knn_interval == 0:
-        with _stage(timings, "knn"):
+        with stage(timings, "knn"):
             r = None if reals is None else reals.detach().cpu().numpy()
             state.candidates.add(knn_triples(pd.points, r, ~pd.hidden, cfg.knn_k, cfg.knn_thresholds))
     state.passes += 1
 
-    with _stage(timings, "candidates"):
+    with stage(timings, "candidates"):
         # Candidates not in the WDT with all three vertices owning a power cell (sorted by key).
         ck = state.candidates.keys
         pos = np.searchsorted(wdt_keys, ck).clip(max=len(wdt_keys) - 1)
@@ -464,14 +312,14 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
                                                         cand_keys)
         found = {} if coherent else None
 
-    with _stage(timings, "existing"):
+    with stage(timings, "existing"):
         # Above 10/alpha Lambda_wdt's clamp stops gradients; the power-cell factor needs them all.
         upper = None if cfg.power_cell_factor or cfg.active_band is None else 10.0 / cfg.alpha
         diagram = delta_diagram(points, weights, pd) if cfg.impl == "native" else None
         per_vertex = existing_deltas(points, weights, pd, cache, cfg.ray, upper, impl=cfg.impl, diagram=diagram,
                                      hint=hint_wdt, record=found)
 
-    with _stage(timings, "nonexisting"):
+    with stage(timings, "nonexisting"):
         band = None if cfg.active_band is None else cfg.active_band / cfg.alpha
         per_vertex_non = nonexisting_deltas(points, weights, pd, cand, cfg.ray, band, cfg.impl, diagram,
                                             hint=hint_cand, record=found)
@@ -479,30 +327,27 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
         state.coherence.record(hint_wdt is None, pd, cache, keys, order, found["neighbour"], cand_keys,
                                found.get("edge", np.zeros((0, 3), np.int32)))
 
-    t_prob, c_prob = time.perf_counter(), time.process_time()
-    faces_np = np.concatenate([pd.faces.astype(np.int64), cand])
-    faces = torch.from_numpy(faces_np)
-    in_wdt = torch.zeros(len(faces), dtype=torch.bool)
-    in_wdt[: len(pd.faces)] = True
-    dtype = points.dtype
-    if cfg.impl == "native" and not cfg.power_cell_factor:
-        delta, p_wdt, p_real, prob = _Lambda.apply(per_vertex, per_vertex_non, reals, faces_np, cfg.alpha,
-                                                   cfg.alpha_real, dtype)
-        out = FaceProbabilities(faces, in_wdt, delta, p_wdt, p_real, prob, pd, diagram)
-    else:
-        delta = torch.cat([per_vertex.mean(1), -per_vertex_non.mean(1)])
-        p_wdt = lambda_wdt(delta, cfg.alpha)
-        if cfg.power_cell_factor:
-            p_wdt = p_wdt * _power_cell_factor(per_vertex, pd, faces, n, cfg)
-        if reals is None:
-            p_real = torch.ones_like(p_wdt)
+    with stage(timings, "probabilities"):
+        faces_np = np.concatenate([pd.faces.astype(np.int64), cand])
+        faces = torch.from_numpy(faces_np)
+        in_wdt = torch.zeros(len(faces), dtype=torch.bool)
+        in_wdt[: len(pd.faces)] = True
+        dtype = points.dtype
+        if cfg.impl == "native" and not cfg.power_cell_factor:
+            delta, p_wdt, p_real, prob = _Lambda.apply(per_vertex, per_vertex_non, reals, faces_np, cfg.alpha,
+                                                       cfg.alpha_real, dtype)
+            out = FaceProbabilities(faces, in_wdt, delta, p_wdt, p_real, prob, pd, diagram)
         else:
-            p_real = dmin(reals[faces].double(), cfg.alpha_real)
-        out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
-                                (p_wdt * p_real).to(dtype), pd, diagram)
-    if timings is not None:
-        timings["probabilities"] = timings.get("probabilities", 0.0) + time.perf_counter() - t_prob
-        timings["probabilities_cpu"] = timings.get("probabilities_cpu", 0.0) + time.process_time() - c_prob
+            delta = torch.cat([per_vertex.mean(1), -per_vertex_non.mean(1)])
+            p_wdt = lambda_wdt(delta, cfg.alpha)
+            if cfg.power_cell_factor:
+                p_wdt = p_wdt * _power_cell_factor(per_vertex, pd, faces, n, cfg)
+            if reals is None:
+                p_real = torch.ones_like(p_wdt)
+            else:
+                p_real = dmin(reals[faces].double(), cfg.alpha_real)
+            out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
+                                    (p_wdt * p_real).to(dtype), pd, diagram)
     return out
 
 

@@ -14,7 +14,12 @@ import logging
 
 import numpy as np
 
+from dmesh.tolerances import FLOAT64_FLOOR
+
 log = logging.getLogger(__name__)
+
+#: Pointer-doubling rounds of `winding_components` (paths of up to 2^64 faces).
+MAX_TREE_DOUBLINGS = 64
 
 
 def _half_edges(faces: np.ndarray) -> np.ndarray:
@@ -157,15 +162,25 @@ def winding_components(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     by_key = np.argsort(pair_key)
     child = np.flatnonzero(parent < F)
     tree_key = np.minimum(parent[child], child) * F + np.maximum(parent[child], child)
-    step = np.zeros(F + 1, np.int64)
+    step = np.zeros(F, np.int64)
     step[child] = same[by_key[np.searchsorted(pair_key[by_key], tree_key)]]
-    nxt = np.r_[parent, F]
-    for _ in range(64):
-        if (nxt == F).all():
+    flips, _ = sum_along_walks(parent, step, MAX_TREE_DOUBLINGS)
+    return (flips % 2).astype(bool), comp.astype(np.int64), int(n)
+
+
+def sum_along_walks(nxt: np.ndarray, step: np.ndarray, max_doublings: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of `step` ((T,) ints or floats) along each node's path of `nxt` pointers to the sink (index
+    len(nxt)), by pointer doubling, at most `max_doublings` rounds. Returns the (T,) sums and (T,) bool whether
+    the path reached the sink."""
+    T = len(nxt)
+    nxt = np.r_[nxt, T]
+    total = np.r_[step, 0]
+    for _ in range(max_doublings):
+        if (nxt == T).all():
             break
-        step = step + step[nxt]
+        total = total + total[nxt]
         nxt = nxt[nxt]
-    return (step[:F] % 2).astype(bool), comp.astype(np.int64), int(n)
+    return total[:-1], nxt[:-1] == T
 
 
 def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int = 3, confident: float = 0.5,
@@ -204,8 +219,8 @@ def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int 
     kk = min(k, len(normals[0]))
     _, j = cKDTree(normals[0]).query(t.mean(1), k=kk, workers=workers)
     mean = normals[1][j.reshape(len(f), -1)].sum(1) / kk
-    agree = np.einsum("ij,ij->i", cross, mean) / np.maximum(area, 1e-300)
-    vote = np.bincount(comp, agree * area, n) / np.maximum(np.bincount(comp, area, n), 1e-300)
+    agree = np.einsum("ij,ij->i", cross, mean) / np.maximum(area, FLOAT64_FLOOR)
+    vote = np.bincount(comp, agree * area, n) / np.maximum(np.bincount(comp, area, n), FLOAT64_FLOOR)
     volume = np.bincount(comp, np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])), n)
     turn = np.where(np.abs(vote) >= confident / 2, vote < 0, volume < 0)[comp]
     agree[turn] = -agree[turn]

@@ -39,6 +39,8 @@ import logging
 
 import numpy as np
 
+from dmesh.repair import sum_along_walks
+
 log = logging.getLogger(__name__)
 
 #: Most pointer-doubling rounds of a walk (walks of up to 2**32 tets; longer ones, or cycles, abstain).
@@ -100,25 +102,11 @@ def walk_votes(pd, walls: np.ndarray, dirs: np.ndarray, face_sign: np.ndarray | 
         else:  # leaving a wall's inside: +1; entering it: -1
             leaving = np.einsum("ij,ij->i", sorted_normal[face], area[rows, k]) > 0
             step = np.where(walls[face], np.where(leaving, 1, -1) * np.sign(face_sign[face]), 0).astype(np.int64)
-        total, done = _sum_along_walks(np.where(neighbours[rows, k] < 0, T, neighbours[rows, k]), step)
+        total, done = sum_along_walks(np.where(neighbours[rows, k] < 0, T, neighbours[rows, k]), step, MAX_DOUBLINGS)
         inside = (total % 2 == 1) if face_sign is None else (total != 0)
         votes += inside & done
         finished += done
     return votes / np.maximum(finished, 1)
-
-
-def _sum_along_walks(nxt: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sum of `step` along each node's path of `nxt` pointers to the sink (index len(nxt)); pointer
-    doubling. Returns the (T,) sums and (T,) bool whether the path reached the sink."""
-    T = len(nxt)
-    nxt = np.r_[nxt, T]
-    total = np.r_[step, 0]
-    for _ in range(MAX_DOUBLINGS):
-        if (nxt == T).all():
-            break
-        total = total + total[nxt]
-        nxt = nxt[nxt]
-    return total[:-1], nxt[:-1] == T
 
 
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

@@ -38,6 +38,7 @@ from torch.autograd.function import once_differentiable
 
 from dmesh import native
 from dmesh.reference.chamfer import expected_min_distance, first_occurrence, sample_term, target_term
+from dmesh.tolerances import DIVISION_FLOOR
 
 #: Implementations of `ExpectedChamfer` (module docstring).
 IMPLS = ("native", "reference")
@@ -115,7 +116,7 @@ def sample_faces(points: torch.Tensor, faces: torch.Tensor, prob_wdt: torch.Tens
     normals = None
     if with_normals:
         n = torch.linalg.cross(b - a, c - a)
-        normals = n / n.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        normals = n / n.norm(dim=1, keepdim=True).clamp_min(DIVISION_FLOOR)
     return SurfaceSamples(pts, face, prob.double()[face], normals)
 
 

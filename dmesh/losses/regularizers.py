@@ -17,7 +17,9 @@ import math
 import numpy as np
 import torch
 
-from dmesh import geometry, probability
+from dmesh import geometry
+from dmesh.deltas import orthocentres
+from dmesh.tolerances import DIVISION_FLOOR
 from dmesh.wdt import PowerDiagram
 
 
@@ -32,7 +34,7 @@ def weight_regularizer(points: torch.Tensor, weights: torch.Tensor, pd: PowerDia
     if len(inner) == 0:
         return torch.zeros((), dtype=torch.float64)
     if diagram is not None:
-        cc = probability.orthocentres(points, weights, diagram)
+        cc = orthocentres(points, weights, diagram)
     else:
         cc = geometry.orthocentres(points, weights, torch.from_numpy(pd.tets).long())
     ft = torch.from_numpy(pd.face_tets[inner]).long()
@@ -53,7 +55,7 @@ def real_regularizer(reals: torch.Tensor, faces: torch.Tensor, face_weights: tor
         return torch.zeros((), dtype=torch.float64)
     r = reals.double()[faces]
     w = face_weights.detach().double()
-    total = w.sum().clamp_min(1e-12)
+    total = w.sum().clamp_min(DIVISION_FLOOR)
     out = torch.zeros((), dtype=torch.float64)
     if smooth:
         out = out + (w * (r - r.mean(1, keepdim=True).detach()).abs().mean(1)).sum() / total
@@ -70,8 +72,8 @@ def aspect_ratios(points: torch.Tensor, faces: torch.Tensor) -> tuple[torch.Tens
     edges = torch.stack([(b - a).norm(dim=1), (c - b).norm(dim=1), (a - c).norm(dim=1)], dim=1)
     longest = edges.max(1).values
     area2 = torch.linalg.cross(b - a, c - a).norm(dim=1)           # twice the area
-    min_height = area2 / longest.clamp_min(1e-12)
-    ratio = longest / (min_height * (2.0 / math.sqrt(3.0))).clamp_min(1e-12)
+    min_height = area2 / longest.clamp_min(DIVISION_FLOOR)
+    ratio = longest / (min_height * (2.0 / math.sqrt(3.0))).clamp_min(DIVISION_FLOOR)
     return ratio, longest
 
 
@@ -89,7 +91,7 @@ def quality_regularizer(points: torch.Tensor, faces: torch.Tensor, prob: torch.T
         return torch.zeros((), dtype=torch.float64)
     ratio, longest = aspect_ratios(points, faces)
     lam = prob.double()
-    return (ratio.clamp(1.0, max_ratio) * longest * lam).sum() / lam.detach().sum().clamp_min(1e-12)
+    return (ratio.clamp(1.0, max_ratio) * longest * lam).sum() / lam.detach().sum().clamp_min(DIVISION_FLOOR)
 
 
 def ramp(step: int, start: float, end: float, steps: int) -> float:
@@ -98,24 +100,25 @@ def ramp(step: int, start: float, end: float, steps: int) -> float:
         return float(end)
     return float(start + (end - start) * step / steps)
 
-def add_phase1_regularizers(loss, dm, fp, pd, cfg, step: int):
+
+def add_phase1_regularizers(loss, dm, probs, pd, cfg, step: int):
     """`loss` plus the regularisers of a phase-1 step, added in a fixed order: weight (`cfg.lambda_weight`,
     over the power diagram `pd`), real (ramped from `cfg.lambda_real_start` to `cfg.lambda_real_end` over
     `cfg.real_ramp_steps`) and quality (`cfg.lambda_quality`); a zero weight skips its term.
 
     Args:
-        loss: scalar tensor (the data term); dm: `DMesh`; fp: its `face_probabilities` (faces, prob_wdt,
+        loss: scalar tensor (the data term); dm: `DMesh`; probs: its `face_probabilities` (faces, prob_wdt,
         prob); pd: the `PowerDiagram` of this step; cfg: a `PointCloudConfig` or `MultiViewConfig` (any object
         with those fields); step: the phase-1 step (for the ramp).
     """
     if cfg.lambda_weight > 0:
-        diagram = fp.diagram if pd is fp.power_diagram else None  # the pass's native orthocentres
+        diagram = probs.diagram if pd is probs.power_diagram else None  # the pass's native orthocentres
         loss = loss + cfg.lambda_weight * weight_regularizer(dm.points, dm.weights, pd, diagram=diagram)
     coef = ramp(step, cfg.lambda_real_start, cfg.lambda_real_end, cfg.real_ramp_steps)
     if coef > 0:
-        loss = loss + coef * real_regularizer(dm.reals, fp.faces, fp.prob_wdt)
+        loss = loss + coef * real_regularizer(dm.reals, probs.faces, probs.prob_wdt)
     if cfg.lambda_quality > 0:
-        loss = loss + cfg.lambda_quality * quality_regularizer(dm.points, fp.faces, fp.prob, min_prob=1e-4)
+        loss = loss + cfg.lambda_quality * quality_regularizer(dm.points, probs.faces, probs.prob, min_prob=1e-4)
     return loss
 
 

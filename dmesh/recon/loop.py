@@ -32,7 +32,6 @@ import hashlib
 import logging
 import os
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -42,30 +41,9 @@ import torch
 
 from dmesh.recon.config import TRAIN_ALL  # noqa: F401 - re-exported (every parameter trains in phase 1)
 from dmesh.recon.optim import BoundedAdam
+from dmesh.timing import Clock  # re-exported (the stage clock of a run)
 
 log = logging.getLogger(__name__)
-
-
-class Clock:
-    """Seconds per named stage, accumulated into `timings` (a dict shared with the caller): wall time under
-    the stage's name, process CPU time (all threads) under name + "_cpu"."""
-
-    def __init__(self, timings: dict):
-        self.timings = timings
-
-    @contextmanager
-    def __call__(self, name: str):
-        t0, c0 = time.perf_counter(), time.process_time()
-        try:
-            yield
-        finally:
-            self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
-            self.timings[name + "_cpu"] = self.timings.get(name + "_cpu", 0.0) + time.process_time() - c0
-
-    def add(self, other: dict, prefix: str = "") -> None:
-        """Adds seconds per stage measured elsewhere (e.g. `DMesh.face_probabilities(timings=...)`)."""
-        for k, v in other.items():
-            self.timings[prefix + k] = self.timings.get(prefix + k, 0.0) + v
 
 
 @dataclass
@@ -132,6 +110,15 @@ def freeze_faces(opt: BoundedAdam, faces: np.ndarray) -> None:
     mask = np.zeros(len(opt.frozen), bool)
     mask[np.asarray(faces, dtype=np.int64).reshape(-1)] = True
     opt.freeze(torch.from_numpy(mask))
+
+
+def timed_probabilities(dm, clock: Clock, prefix: str):
+    """`dm.face_probabilities()` (a `DMesh`'s), the seconds of its stages added to `clock` under `prefix`
+    (e.g. "phase1_wdt"): how a phase-1 step scores its faces."""
+    stage_t: dict = {}
+    probs = dm.face_probabilities(timings=stage_t)
+    clock.add(stage_t, prefix)
+    return probs
 
 
 class Loop:
@@ -248,4 +235,4 @@ class Loop:
 
 
 __all__ = ["TRAIN_ALL", "Clock", "Loop", "ReconstructionResult", "fingerprint", "freeze_faces", "load_state",
-           "mesh_mask", "save_state"]
+           "mesh_mask", "save_state", "timed_probabilities"]

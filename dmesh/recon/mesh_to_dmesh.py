@@ -34,9 +34,11 @@ import numpy as np
 import torch
 
 from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
-from dmesh.probability import existing_deltas, nonexisting_deltas
+from dmesh.checks import require_positive
+from dmesh.deltas import existing_deltas, nonexisting_deltas
 from dmesh.recon.loop import Loop, ReconstructionResult
 from dmesh.recon.optim import BoundedAdam, StepConfig
+from dmesh.tolerances import COINCIDENT, FLOAT64_FLOOR
 from dmesh.wdt import PowerDiagram, face_keys, triangulate
 
 log = logging.getLogger(__name__)
@@ -65,14 +67,10 @@ class MeshToDMeshConfig:
     seed: int = 0                 # seeds insertion sampling and k-means
 
     def __post_init__(self):
-        for name in ("steps", "insert_every", "knn_every", "knn_k"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"MeshToDMeshConfig.{name} must be positive, got {getattr(self, name)}")
+        require_positive(self, ("steps", "insert_every", "knn_every", "knn_k"))
         if not 0 < self.decay <= 1:
             raise ValueError(f"MeshToDMeshConfig.decay must be in (0, 1], got {self.decay}")
-        for name in ("lr", "update_bound", "max_perturb", "margin", "grad_clip", "ray_length"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"MeshToDMeshConfig.{name} must be positive, got {getattr(self, name)}")
+        require_positive(self, ("lr", "update_bound", "max_perturb", "margin", "grad_clip", "ray_length"))
 
 
 def paper_config(**overrides) -> MeshToDMeshConfig:
@@ -193,10 +191,12 @@ class _Run:
         self.candidates.add(self.gt_faces)
         self.gt_keys = np.sort(face_keys(self.gt_faces, self.n))
 
-    def optimizer(self, scale: float) -> BoundedAdam:
-        """The `BoundedAdam` of an insertion period: positions and weights, lr and bound times `scale`."""
+    def optimizer(self, decay_factor: float) -> BoundedAdam:
+        """The `BoundedAdam` of an insertion period: positions and weights, lr and bound times
+        `decay_factor` (`decay` ** period)."""
         cfg = self.cfg
-        step = StepConfig(lr=cfg.lr * scale, update_bound=cfg.update_bound * scale, grad_clip=cfg.grad_clip)
+        step = StepConfig(lr=cfg.lr * decay_factor, update_bound=cfg.update_bound * decay_factor,
+                          grad_clip=cfg.grad_clip)
         return BoundedAdam(self.points, self.weights, self.reals, step, train=("points", "weights"))
 
     def diagram(self) -> PowerDiagram:
@@ -295,7 +295,7 @@ def _better(re: float, fp: float, best: Snapshot | None, fp_accept: float) -> bo
     return re - fp > best.re - best.fp
 
 
-def _coincides(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+def _coincides(a: np.ndarray, b: np.ndarray, tol: float = COINCIDENT) -> np.ndarray:
     """(len(a),) bool: rows of a within tol of some row of b."""
     from scipy.spatial import cKDTree
 
@@ -343,7 +343,7 @@ def _orient(points: np.ndarray, weights: np.ndarray, faces: np.ndarray, gt_verti
     walls[ids[ids >= 0]] = True
     tri = gt_vertices[gt_faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), FLOAT64_FLOOR)
     wound = surface(pd, walls, (tri.mean(1), normal), SurfaceConfig(clean=False)).faces
     return np.concatenate([wound, faces[ids < 0]])  # (a face not in this WDT, which should not happen, stays)
 

@@ -16,6 +16,9 @@ from dataclasses import dataclass
 
 import torch
 
+from dmesh.checks import require_positive
+from dmesh.tolerances import GRAD_NORM_FLOOR
+
 
 @dataclass(frozen=True)
 class StepConfig:
@@ -27,9 +30,7 @@ class StepConfig:
     grad_clip: float | None = None  # per-point gradient norm clip; None: update_bound / lr (upstream)
 
     def __post_init__(self):
-        for name in ("lr", "update_bound", "max_real"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"StepConfig.{name} must be positive, got {getattr(self, name)}")
+        require_positive(self, ("lr", "update_bound", "max_real"))
 
     @property
     def real_lr(self) -> float:
@@ -48,8 +49,8 @@ def clip_per_point(grad: torch.Tensor, max_norm: float) -> torch.Tensor:
     """grad with NaN/inf zeroed and each row ((N, 3) rows, or (N,) scalars) scaled to norm <= max_norm."""
     g = torch.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
     norm = g.norm(dim=1, keepdim=True) if g.ndim == 2 else g.abs()
-    scale = (max_norm / norm.clamp_min(1e-30)).clamp_max(1.0)
-    return g * scale
+    factor = (max_norm / norm.clamp_min(GRAD_NORM_FLOOR)).clamp_max(1.0)
+    return g * factor
 
 
 class BoundedAdam:

@@ -18,7 +18,7 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
 
 The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
-this module supplies each phase's step function (`phase1_step`, `phase2_step` in `reconstruct`).
+this module supplies each phase's step function (`_Run.phase1_step`, `_Run.phase2_step`).
 A run can be resumed from `state_path` (written atomically every `save_every` steps and at the end of each
 phase): same config and same input give the same continuation, except that the per-phase candidate set and
 neighbour cache restart empty after a resume (they are rebuilt within a few steps).
@@ -39,8 +39,10 @@ from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
 from dmesh.recon.config import KERNELS, POINTCLOUD_PRESETS as PRESETS, POINTCLOUD_RECIPES as RECIPES, PointCloudConfig
 from dmesh.recon.init import carve_far_faces, seeds_and_voronoi
-from dmesh.recon.loop import Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
+from dmesh.recon.loop import (Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask,
+                              timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
+from dmesh.tolerances import DIVISION_FLOOR
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +82,147 @@ def check_points(points, normals=None) -> tuple[np.ndarray, np.ndarray | None]:
         if not np.isfinite(nrm).all():
             raise ValueError("normals contain NaN or inf")
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
-        nrm = nrm / np.maximum(length, 1e-12)
+        nrm = nrm / np.maximum(length, DIVISION_FLOOR)
     return pts, nrm
+
+
+class _Run:
+    """One reconstruction's state and its pieces, in the order `reconstruct` calls them: `setup` (seeds,
+    normalisation, initial DMesh and Chamfer term), `resume`, the phase step functions (`phase1_step`;
+    `freeze_wdt`, then `phase2_step` and `phase2_faces`) and `extract`."""
+
+    def __init__(self, pts_in: np.ndarray, nrm_in: np.ndarray | None, cfg: PointCloudConfig, callback,
+                 state_path, probe):
+        self.cfg, self.nrm_in = cfg, nrm_in
+        self.rng = np.random.default_rng(cfg.seed)
+        torch.manual_seed(cfg.seed)
+        self.chamfer = None
+        self.loop = Loop(callback, state_path, fingerprint(pts_in, cfg), cfg.save_every,
+                         extra_state=lambda: {"k": self.chamfer.k, "rng": self.rng.bit_generator.state}, probe=probe)
+        self.clock = self.loop.clock
+        self.with_normals = cfg.lambda_normal > 0
+
+    def setup(self, pts_in: np.ndarray) -> dict:
+        """Normalises the input, picks the Chamfer target, builds the initial DMesh and the Chamfer term
+        (procedure step 1) and the phase-1 optimiser; returns the run's first info counts."""
+        from dmesh.model import DMesh
+
+        cfg, rng, nrm_in = self.cfg, self.rng, self.nrm_in
+        self.loop.stage("init")
+        with self.clock("init"):
+            self.center = pts_in.mean(0)
+            radius = float(np.linalg.norm(pts_in - self.center, axis=1).max())
+            self.scale = 1.0 / radius
+            self.pts = pts = (pts_in - self.center) * self.scale
+            tidx = rng.choice(len(pts), cfg.num_target, replace=False) if cfg.num_target < len(pts) else None
+            target = pts if tidx is None else pts[tidx]
+            target_n = None if nrm_in is None else (nrm_in if tidx is None else nrm_in[tidx])
+            positions, reals = seeds_and_voronoi(pts, cfg.num_init, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
+                                                 vertices=cfg.voronoi)
+            carved = 0
+            if cfg.carve > 0:
+                positions, reals, carved = carve_far_faces(positions, reals, pts, cfg.carve, cfg.extraction,
+                                                           workers=cfg.workers)
+            self.dm = dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
+            self.chamfer = ExpectedChamfer(target, target_n if cfg.lambda_normal > 0 else None, k_max=cfg.k_max,
+                                           mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal,
+                                           workers=cfg.workers, impl=cfg.kernels)
+        self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
+        return {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
+                "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": self.loop.fingerprint}
+
+    def resume(self, info: dict) -> tuple[int, int]:
+        """(phase, first step) to run: (1, 0), or the saved position, whose DMesh, optimiser, Chamfer k and
+        RNG state replace the fresh ones."""
+        from dmesh.model import DMesh
+
+        cfg = self.cfg
+        resumed = self.loop.resume()
+        if resumed is None:
+            return 1, 0
+        phase, start = resumed["phase"], resumed["step"]
+        if phase == 3:  # finished: straight to extraction
+            phase, start = 2, cfg.steps_phase2
+        with torch.no_grad():
+            self.dm = dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
+        self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(),
+                               cfg.train_phase1 if phase == 1 else ("reals",))
+        if resumed.get("optimizer") is not None:
+            self.opt.load_state_dict(resumed["optimizer"])
+        self.chamfer.k = int(resumed["k"])
+        self.rng.bit_generator.state = resumed["rng"]
+        info["resumed_from"] = {"phase": phase, "step": start}
+        log.info("resuming from phase %d step %d", phase, start)
+        return phase, start
+
+    def phase1_step(self, step: int):
+        """Procedure step 2: re-triangulate and score, sample, expected Chamfer plus the regularisers."""
+        cfg, dm, clock = self.cfg, self.dm, self.clock
+        probs = timed_probabilities(dm, clock, "phase1_")
+        pd = probs.power_diagram
+        hard = mesh_mask(dm.reals, pd.faces, cfg.threshold)
+        with clock("phase1_sampling"):
+            samples = sample_faces(dm.points, probs.faces, probs.prob_wdt, dm.reals, probs.prob, cfg.num_samples,
+                                   self.rng, cfg.prob_threshold, with_normals=self.with_normals)
+        with clock("phase1_chamfer"):
+            loss, fig = self.chamfer(samples)
+        with clock("phase1_regularizers"):
+            loss = add_phase1_regularizers(loss, dm, probs, pd, cfg, step)
+        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
+                      "candidates": int(len(probs.faces)), "samples": len(samples)}
+
+    def start_phase2(self) -> None:
+        """The phase-2 optimiser (reals only), saved as the state at phase 2 step 0."""
+        dm = self.dm
+        self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, self.cfg.step_config(), train=("reals",))
+        self.loop.save({"phase": 2, "step": 0}, self.opt)
+
+    def freeze_wdt(self) -> None:
+        """Procedure step 3's frozen WDT: its faces, scored with Lambda_wdt = 1 from now on."""
+        self.loop.stage("phase2")
+        with self.clock("phase2_wdt"):
+            self.pd = self.dm.power_diagram()
+            self.faces = torch.from_numpy(self.pd.faces.astype(np.int64))
+            self.ones = torch.ones(len(self.faces), dtype=self.dm.points.dtype)
+
+    def phase2_step(self, step: int):
+        """Procedure step 3: freezes at the scheduled steps, samples the frozen faces, expected Chamfer plus the
+        growth real regulariser."""
+        cfg, dm, clock, pd, faces, ones = self.cfg, self.dm, self.clock, self.pd, self.faces, self.ones
+        if step in cfg.freeze_phase2:
+            freeze_faces(self.opt, pd.faces[mesh_mask(dm.reals, pd.faces, cfg.threshold)])
+        with clock("phase2_sampling"):
+            prob = dmin(dm.reals[faces].double(), cfg.alpha_real)
+            samples = sample_faces(dm.points, faces, ones, dm.reals, prob, cfg.num_samples, self.rng,
+                                   cfg.prob_threshold, with_normals=self.with_normals)
+        with clock("phase2_chamfer"):
+            loss, fig = self.chamfer(samples)
+        with clock("phase2_regularizers"):
+            if cfg.lambda_real_end > 0:
+                loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
+        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"],
+                      "candidates": int(len(faces)), "samples": len(samples)}
+
+    def phase2_faces(self, step: int) -> dict:
+        """The size of the mesh after the update."""
+        return {"faces": int(mesh_mask(self.dm.reals, self.pd.faces, self.cfg.threshold).sum())}
+
+    def extract(self, info: dict) -> PointCloudResult:
+        """Procedure step 4: the mesh of the final WDT, mapped back to the input frame."""
+        cfg, pd = self.cfg, self.pd
+        self.loop.stage("extract")
+        with self.clock("extract"):
+            # With `orient`: the faces' closed, outward surface (dmesh.extract.surface); input normals, when
+            # given, vote inside/outside and turn the open sheets.
+            mesh = extract(self.dm, cfg.threshold, pd, cfg.extraction, orient=cfg.orient,
+                           normals=None if self.nrm_in is None else (self.pts, self.nrm_in),
+                           config=SurfaceConfig(seed=cfg.seed, workers=cfg.workers))
+        if "surface" in mesh.metadata:
+            info["surface"] = mesh.metadata.pop("surface")
+        mesh.vertices = np.asarray(mesh.vertices) / self.scale + self.center
+        info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
+                     "hidden_points": int(pd.hidden.sum()), "final_k": int(self.chamfer.k)})
+        return PointCloudResult(mesh, self.dm, self.center, self.scale, self.loop.finish(), self.loop.history, info)
 
 
 def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
@@ -110,120 +251,19 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     pts_in, nrm_in = check_points(points, normals)
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
-    from dmesh.model import DMesh
-
-    rng = np.random.default_rng(cfg.seed)
-    torch.manual_seed(cfg.seed)
-    chamfer = None
-    loop = Loop(callback, state_path, fingerprint(pts_in, cfg), cfg.save_every,
-                extra_state=lambda: {"k": chamfer.k, "rng": rng.bit_generator.state}, probe=probe)
-    clock = loop.clock
-
-    loop.stage("init")
-    with clock("init"):
-        center = pts_in.mean(0)
-        radius = float(np.linalg.norm(pts_in - center, axis=1).max())
-        scale = 1.0 / radius
-        pts = (pts_in - center) * scale
-        tidx = rng.choice(len(pts), cfg.num_target, replace=False) if cfg.num_target < len(pts) else None
-        target = pts if tidx is None else pts[tidx]
-        target_n = None if nrm_in is None else (nrm_in if tidx is None else nrm_in[tidx])
-        positions, reals = seeds_and_voronoi(pts, cfg.num_init, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
-                                             vertices=cfg.voronoi)
-        carved = 0
-        if cfg.carve > 0:
-            positions, reals, carved = carve_far_faces(positions, reals, pts, cfg.carve, cfg.extraction,
-                                                       workers=cfg.workers)
-        dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
-        chamfer = ExpectedChamfer(target, target_n if cfg.lambda_normal > 0 else None, k_max=cfg.k_max,
-                                  mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal, workers=cfg.workers,
-                                  impl=cfg.kernels)
-    info = {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
-            "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": loop.fingerprint}
-    phase, start = 1, 0
-    opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
-    resumed = loop.resume()
-    if resumed is not None:
-        phase, start = resumed["phase"], resumed["step"]
-        if phase == 3:  # finished: straight to extraction
-            phase, start = 2, cfg.steps_phase2
-        with torch.no_grad():
-            dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
-        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1 if phase == 1 else ("reals",))
-        if resumed.get("optimizer") is not None:
-            opt.load_state_dict(resumed["optimizer"])
-        chamfer.k = int(resumed["k"])
-        rng.bit_generator.state = resumed["rng"]
-        info["resumed_from"] = {"phase": phase, "step": start}
-        log.info("resuming from phase %d step %d", phase, start)
-    with_normals = cfg.lambda_normal > 0
-
-    # ----------------------------------------------------------------------------------------- phase 1
-    def phase1_step(step: int):
-        stage_t: dict = {}
-        fp = dm.face_probabilities(timings=stage_t)
-        clock.add(stage_t, "phase1_")
-        pd = fp.power_diagram
-        hard = mesh_mask(dm.reals, pd.faces, cfg.threshold)
-        with clock("phase1_sampling"):
-            samples = sample_faces(dm.points, fp.faces, fp.prob_wdt, dm.reals, fp.prob, cfg.num_samples, rng,
-                                   cfg.prob_threshold, with_normals=with_normals)
-        with clock("phase1_chamfer"):
-            loss, fig = chamfer(samples)
-        with clock("phase1_regularizers"):
-            loss = add_phase1_regularizers(loss, dm, fp, pd, cfg, step)
-        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
-                      "candidates": int(len(fp.faces)), "samples": len(samples)}
-
+    run = _Run(pts_in, nrm_in, cfg, callback, state_path, probe)
+    info = run.setup(pts_in)
+    phase, start = run.resume(info)
     if phase == 1:
-        loop.stage("phase1")
-        loop.run_phase(phase1_step, opt, cfg.steps_phase1, start, {"phase": 1}, "phase1_")
-        phase, start = 2, 0
-        opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), train=("reals",))
-        loop.save({"phase": 2, "step": 0}, opt)
-
-    # ----------------------------------------------------------------------------------------- phase 2
-    loop.stage("phase2")
-    with clock("phase2_wdt"):
-        pd = dm.power_diagram()
-        faces = torch.from_numpy(pd.faces.astype(np.int64))
-        ones = torch.ones(len(faces), dtype=dm.points.dtype)
-
-    def phase2_step(step: int):
-        if step in cfg.freeze_phase2:
-            freeze_faces(opt, pd.faces[mesh_mask(dm.reals, pd.faces, cfg.threshold)])
-        with clock("phase2_sampling"):
-            prob = dmin(dm.reals[faces].double(), cfg.alpha_real)
-            samples = sample_faces(dm.points, faces, ones, dm.reals, prob, cfg.num_samples, rng,
-                                   cfg.prob_threshold, with_normals=with_normals)
-        with clock("phase2_chamfer"):
-            loss, fig = chamfer(samples)
-        with clock("phase2_regularizers"):
-            if cfg.lambda_real_end > 0:
-                loss = loss + cfg.lambda_real_end * real_regularizer(dm.reals, faces, ones, smooth=False)
-        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"],
-                      "candidates": int(len(faces)), "samples": len(samples)}
-
-    def phase2_faces(step: int) -> dict:  # the mesh after the update
-        return {"faces": int(mesh_mask(dm.reals, pd.faces, cfg.threshold).sum())}
-
-    loop.run_phase(phase2_step, opt, cfg.steps_phase2, start, {"phase": 2}, "phase2_", after_step=phase2_faces)
-    loop.save({"phase": 3, "step": 0}, opt)
-
-    # ------------------------------------------------------------------------------------- extraction
-    loop.stage("extract")
-    with clock("extract"):
-        # With `orient`: the faces' closed, outward surface (dmesh.extract.surface); input normals, when
-        # given, vote inside/outside and turn the open sheets.
-        mesh = extract(dm, cfg.threshold, pd, cfg.extraction, orient=cfg.orient,
-                       normals=None if nrm_in is None else (pts, nrm_in),
-                       config=SurfaceConfig(seed=cfg.seed, workers=cfg.workers))
-    if "surface" in mesh.metadata:
-        info["surface"] = mesh.metadata.pop("surface")
-    mesh.vertices = np.asarray(mesh.vertices) / scale + center
-    info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
-                 "hidden_points": int(pd.hidden.sum()), "final_k": int(chamfer.k)})
-    return PointCloudResult(mesh, dm, center, scale, loop.finish(), loop.history, info)
+        run.loop.stage("phase1")
+        run.loop.run_phase(run.phase1_step, run.opt, cfg.steps_phase1, start, {"phase": 1}, "phase1_")
+        start = 0
+        run.start_phase2()
+    run.freeze_wdt()
+    run.loop.run_phase(run.phase2_step, run.opt, cfg.steps_phase2, start, {"phase": 2}, "phase2_",
+                       after_step=run.phase2_faces)
+    run.loop.save({"phase": 3, "step": 0}, run.opt)
+    return run.extract(info)
 
 
 __all__ = ["PointCloudConfig", "PointCloudResult", "PRESETS", "reconstruct", "check_points", "extract",

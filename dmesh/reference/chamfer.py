@@ -42,6 +42,17 @@ def expected_min_distance(dist: torch.Tensor, prob: torch.Tensor, face: torch.Te
     return expected, residual
 
 
+def _distances(origin: torch.Tensor, others: torch.Tensor, rows: torch.Tensor, origin_normals, other_normals,
+               lambda_normal: float, with_normals: bool) -> torch.Tensor:
+    """(R, K) distance from origin[r] to others[rows[r, k]]; with normals, plus lambda_normal (1 - |n . n'|)
+    of the two points' normals."""
+    d = (origin[:, None, :] - others[rows]).norm(dim=-1)
+    if with_normals:
+        cos = (origin_normals[:, None, :] * other_normals[rows]).sum(-1).abs()
+        d = d + lambda_normal * (1.0 - cos)
+    return d
+
+
 def target_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, face: torch.Tensor,
                 knn: torch.Tensor, target_normals: torch.Tensor | None = None,
                 normals: torch.Tensor | None = None, lambda_normal: float = 0.0):
@@ -57,10 +68,9 @@ def target_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, 
         expected: (G,) float64, differentiable in points, prob (and normals).
         residual: (G,) float64 (detached), the probability mass beyond the K candidates.
     """
-    d = (target[:, None, :] - points[knn]).norm(dim=-1)
-    if lambda_normal > 0 and normals is not None:
-        cos = (target_normals[:, None, :] * normals[knn]).sum(-1).abs()
-        d = d + lambda_normal * (1.0 - cos)
+    with_normals = lambda_normal > 0 and normals is not None
+    d = _distances(target, points, knn, target_normals, normals, lambda_normal, with_normals)
+    if with_normals:
         order = torch.argsort(d.detach(), dim=1)
         d, knn = torch.gather(d, 1, order), torch.gather(knn, 1, order)
     return expected_min_distance(d, prob[knn], face[knn])
@@ -76,10 +86,8 @@ def sample_term(points: torch.Tensor, prob: torch.Tensor, target: torch.Tensor, 
             near each sample (J = 1 without the normal term; with it, the minimum over the J of
             d + lambda_normal (1 - |n . n'|)); normals, target_normals: (S, 3), (G, 3) or None.
     """
-    e = (points[:, None, :] - target[nearest]).norm(dim=-1)
-    if lambda_normal > 0 and normals is not None:
-        cos = (normals[:, None, :] * target_normals[nearest]).sum(-1).abs()
-        e = e + lambda_normal * (1.0 - cos)
+    e = _distances(points, target, nearest, normals, target_normals, lambda_normal,
+                   lambda_normal > 0 and normals is not None)
     return prob * e.min(dim=1).values
 
 

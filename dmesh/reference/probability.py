@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from dmesh import geometry, native
+from dmesh.tolerances import COLLINEAR, PARALLEL
 
 
 def _point_segment_2d(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
@@ -34,7 +35,7 @@ def line_cell_distance(origin: np.ndarray, direction: np.ndarray, cell_vertices:
 
     u = direction / np.linalg.norm(direction)
     a0 = np.cross(u, [1.0, 0.0, 0.0])
-    if np.linalg.norm(a0) < 1e-6:
+    if np.linalg.norm(a0) < PARALLEL:
         a0 = np.cross(u, [0.0, 1.0, 0.0])
     a0 /= np.linalg.norm(a0)
     a1 = np.cross(u, a0)
@@ -136,7 +137,7 @@ def nonexisting_deltas(points: torch.Tensor, weights: torch.Tensor, pd, faces: n
     e1 = p64[faces[:, 1]] - p64[faces[:, 0]]
     e2 = p64[faces[:, 2]] - p64[faces[:, 0]]
     area2 = (np.cross(e1, e2) ** 2).sum(1)
-    good = np.flatnonzero(area2 > 1e-12 * (e1 ** 2).sum(1) * (e2 ** 2).sum(1))
+    good = np.flatnonzero(area2 > COLLINEAR * (e1 ** 2).sum(1) * (e2 ** 2).sum(1))
     if len(good) == 0:
         return out
     fg = np.ascontiguousarray(faces[good], dtype=np.int32)

@@ -48,8 +48,8 @@ def _initial_dmesh(pts, cfg):
     from dmesh.recon.pointcloud import reconstruct
     from dmesh.model import DMesh
 
-    res = reconstruct(pts, None, dataclasses.replace(cfg, steps_phase1=0, steps_phase2=0))
-    d = res.dmesh
+    result = reconstruct(pts, None, dataclasses.replace(cfg, steps_phase1=0, steps_phase2=0))
+    d = result.dmesh
     return DMesh(d.points.detach().numpy(), d.weights.detach().numpy(), d.reals.detach().numpy(),
                  cfg.probability_config())
 

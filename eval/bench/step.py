@@ -66,10 +66,10 @@ def _per_step(timings: dict, prefix: str, steps: int) -> tuple[dict, dict]:
     return wall, cpu
 
 
-def _row(case: str, kernels: str, res, phase: int, prefix: str, wdt_s: float | None) -> dict:
-    recs = [h for h in res.history if h.get("phase") == phase]
-    wall, cpu = _per_step(res.timings, prefix, len(recs))
-    row = {"case": case, "kernels": kernels, "points": len(res.dmesh), "steps": len(recs),
+def _row(case: str, kernels: str, result, phase: int, prefix: str, wdt_s: float | None) -> dict:
+    recs = [h for h in result.history if h.get("phase") == phase]
+    wall, cpu = _per_step(result.timings, prefix, len(recs))
+    row = {"case": case, "kernels": kernels, "points": len(result.dmesh), "steps": len(recs),
            "wall_s": statistics.mean(h["seconds"] for h in recs), "cpu_s": sum(cpu.values()),
            "wall": wall, "cpu": cpu}
     if wdt_s:
@@ -114,11 +114,11 @@ def _full_run(pts, nrm, gt_mesh, out: str) -> dict:
         print(f"  phase {record['phase']} step {record['step']}: CD p2s {cd * 1e3:.3f}e-3, {len(mesh.faces)} faces, "
               f"loss {record['loss']:.5f}, k {record['k']}, {record['seconds']:.2f} s/step", flush=True)
 
-    res = reconstruct(pts, nrm, cfg, probe=(CURVE_EVERY, probe))
+    result = reconstruct(pts, nrm, cfg, probe=(CURVE_EVERY, probe))
     # The probe's extractions are not part of the recipe: their time is left out of the wall figure.
-    wall = res.timings["total"] - res.timings.get("probe", 0.0)
-    cd_final = chamfer_l1_p2s(res.mesh, gt_mesh)
-    return {"wall": wall, "cd_final": cd_final, "curve": curve, "history": res.history, "timings": res.timings}
+    wall = result.timings["total"] - result.timings.get("probe", 0.0)
+    cd_final = chamfer_l1_p2s(result.mesh, gt_mesh)
+    return {"wall": wall, "cd_final": cd_final, "curve": curve, "history": result.history, "timings": result.timings}
 
 
 def main(out: str = "reports", quick: bool = False) -> None:
@@ -130,10 +130,10 @@ def main(out: str = "reports", quick: bool = False) -> None:
     rows = []
     for kernels in KERNELS:
         print(f"point cloud, paper size, {kernels} kernels ...", flush=True)
-        res = _pointcloud(kernels, pts, nrm, steps)
-        wdt_s = _wdt_seconds(res.dmesh.points.detach().numpy(), res.dmesh.weights.detach().numpy())
-        rows.append(_row("point cloud phase 1", kernels, res, 1, "phase1_", wdt_s))
-        rows.append(_row("point cloud phase 2", kernels, res, 2, "phase2_", None))
+        result = _pointcloud(kernels, pts, nrm, steps)
+        wdt_s = _wdt_seconds(result.dmesh.points.detach().numpy(), result.dmesh.weights.detach().numpy())
+        rows.append(_row("point cloud phase 1", kernels, result, 1, "phase1_", wdt_s))
+        rows.append(_row("point cloud phase 2", kernels, result, 2, "phase2_", None))
     views = _mv_views()
     for kernels in KERNELS:
         print(f"multi-view, paper epoch 0, {kernels} kernels ...", flush=True)
