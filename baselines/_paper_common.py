@@ -63,20 +63,6 @@ class ImageTargets:
         return len(self.cameras)
 
 
-def lifted_points(depth: np.ndarray, mask: np.ndarray, world_to_camera: np.ndarray, fov_y_degrees: float) -> np.ndarray:
-    """(P, 3) float64 world points of every mask pixel of (V, H, H) `depth`, lifted along its pixel ray."""
-    from dmesh.render import Camera
-
-    h = depth.shape[1]
-    rays = Camera(np.eye(4), fov_y_degrees, h, h).rays()  # camera space, z = -1
-    c2w = np.linalg.inv(world_to_camera)
-    out = []
-    for k in range(len(c2w)):
-        p = rays[mask[k]] * depth[k][mask[k]][:, None].astype(np.float64)
-        out.append(p @ c2w[k, :3, :3].T + c2w[k, :3, 3])
-    return np.concatenate(out)
-
-
 def image_targets(views, resolution: int | None, edge_width: float) -> ImageTargets:
     """Validated targets and cameras of a capture (`datasets.capture.MultiView` or alike).
 
@@ -84,12 +70,12 @@ def image_targets(views, resolution: int | None, edge_width: float) -> ImageTarg
         views: the capture; resolution: optimised image side R (None or >= H: the capture's); edge_width:
             the soft renderer's band width in optimised pixels.
     Raises:
-        ValueError: no views, or a capture `dmesh.recon.multiview.check_views` rejects (one line).
+        ValueError: no views, or a capture `dmesh.recon.views.check_views` rejects (one line).
     """
     import torch
 
-    from dmesh.recon.multiview import DEPTH_SPAN, check_views, soft_band_targets
-    from dmesh.render import Camera
+    from dmesh.camera import Camera, lift_depth
+    from dmesh.recon.views import DEPTH_SPAN, check_views, soft_band_targets
 
     if views is None:
         raise ValueError("this method needs a multi-view capture (inputs.views is None)")
@@ -98,7 +84,7 @@ def image_targets(views, resolution: int | None, edge_width: float) -> ImageTarg
     res = h if resolution is None else min(int(resolution), h)
     if res < 8:
         raise ValueError(f"the optimised image resolution must be at least 8 pixels, got {res}")
-    pts = lifted_points(vw.depth, vw.mask, vw.world_to_camera, vw.fov_y_degrees)
+    pts = lift_depth(vw.depth, vw.mask, vw.world_to_camera, vw.fov_y_degrees)
     lo, hi = pts.min(0), pts.max(0)
     center, half = 0.5 * (lo + hi), 0.5 * float((hi - lo).max())
     if not half > 1e-9:
@@ -125,7 +111,7 @@ def image_loss(verts, faces, targets: ImageTargets, ids, *, edge_width: float = 
     """
     import torch
 
-    from dmesh.recon.multiview import depth_channel
+    from dmesh.recon.views import depth_channel
     from dmesh.render import soft_render
 
     opacity = torch.ones(len(faces), dtype=torch.float32)

@@ -37,7 +37,8 @@ Conventions: `world_to_camera` maps world to OpenGL camera space (the camera loo
 right); `projection` is the OpenGL perspective matrix (gluPerspective) with the vertical field of view
 `fov_y_degrees` (65 by default: a unit-radius object at distance 2 subtends 60 degrees, so it fits with
 about 10% margin; its silhouette spans 0.906 of the half-width), aspect 1, near = 0.05 * distance, far =
-50 * distance. Clip coordinates are projection @ world_to_camera @ [x, y, z, 1].
+50 * distance. Clip coordinates are projection @ world_to_camera @ [x, y, z, 1]. The camera maths (`look_at`,
+`perspective`, `pixel_rays`) is `dmesh.camera`'s, shared with the renderers.
 """
 from __future__ import annotations
 
@@ -53,13 +54,13 @@ from typing import Callable
 import numpy as np
 import trimesh
 
+from dmesh.camera import FOV_Y_DEGREES, look_at, perspective, pixel_rays  # noqa: F401 - re-exported
+
 log = logging.getLogger(__name__)
 
 __all__ = ["MultiView", "capture", "camera_rig", "look_at", "perspective", "pixel_rays", "FOV_Y_DEGREES",
            "gl_platform", "GLUnavailableError"]
 
-#: Default vertical field of view (degrees): fits a unit-radius object at distance 2 with ~10% margin.
-FOV_Y_DEGREES = 65.0
 #: Elevation range (degrees) whose equal bands' centres are the camera rings.
 ELEVATION_RANGE = (-80.0, 80.0)
 NEAR_FACTOR, FAR_FACTOR = 0.05, 50.0
@@ -68,34 +69,6 @@ NEAR_FACTOR, FAR_FACTOR = 0.05, 50.0
 # ----------------------------------------------------------------------------------------------------------
 # Cameras
 # ----------------------------------------------------------------------------------------------------------
-
-def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """World-to-camera (4, 4) float64 for an OpenGL camera at `eye` looking at `target` (camera -Z)."""
-    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
-    z = eye - target
-    z /= np.linalg.norm(z)
-    x = np.cross(up, z)
-    if np.linalg.norm(x) < 1e-9:
-        raise ValueError("look_at: the view direction is parallel to the up vector")
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    m = np.eye(4)
-    m[0, :3], m[1, :3], m[2, :3] = x, y, z
-    m[:3, 3] = -m[:3, :3] @ eye
-    return m
-
-
-def perspective(fov_y_degrees: float, aspect: float, near: float, far: float) -> np.ndarray:
-    """The OpenGL perspective projection (4, 4) float64 (gluPerspective; camera looks down -Z)."""
-    f = 1.0 / np.tan(np.radians(fov_y_degrees) / 2.0)
-    p = np.zeros((4, 4))
-    p[0, 0] = f / aspect
-    p[1, 1] = f
-    p[2, 2] = (far + near) / (near - far)
-    p[2, 3] = 2.0 * far * near / (near - far)
-    p[3, 2] = -1.0
-    return p
-
 
 def _grid_shape(views: int) -> tuple[int, int]:
     n_el = max(d for d in range(1, int(np.sqrt(views)) + 1) if views % d == 0)
@@ -124,19 +97,6 @@ def camera_rig(views: int = 64, distance: float = 2.0, seed: int = 0) -> tuple[n
     eyes = distance * np.stack([np.cos(er) * np.sin(ar), np.sin(er), np.cos(er) * np.cos(ar)], 1)
     w2c = np.stack([look_at(eye) for eye in eyes])
     return w2c, angles
-
-
-def pixel_rays(resolution: int, fov_y_degrees: float) -> np.ndarray:
-    """Camera-space directions through the pixel centres, (H, W, 3) float64, z = -1 (not unit length)."""
-    t = np.tan(np.radians(fov_y_degrees) / 2.0)
-    c = (np.arange(resolution) + 0.5) / resolution
-    x = (2.0 * c - 1.0) * t
-    y = (1.0 - 2.0 * c) * t
-    d = np.empty((resolution, resolution, 3))
-    d[..., 0] = x[None, :]
-    d[..., 1] = y[:, None]
-    d[..., 2] = -1.0
-    return d
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -342,7 +302,7 @@ class _Rasterizer:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, resolution: int):
         platform = gl_platform()
-        self.res = resolution
+        self.resolution = resolution
         self.plat = _make_platform(platform, resolution, resolution)
         from OpenGL import GL as gl
         self.gl = gl
@@ -353,7 +313,7 @@ class _Rasterizer:
             raise
 
     def _setup(self, vertices, faces):
-        gl, r = self.gl, self.res
+        gl, r = self.gl, self.resolution
         self.program = gl.glCreateProgram()
         for kind, src in ((gl.GL_VERTEX_SHADER, _VERT), (gl.GL_FRAGMENT_SHADER, _FRAG)):
             sh = gl.glCreateShader(kind)
@@ -394,7 +354,7 @@ class _Rasterizer:
         gl.glBufferData(gl.GL_ELEMENT_ARRAY_BUFFER, f.nbytes, f, gl.GL_STATIC_DRAW)
         self.count = int(f.size)
 
-        gl.glViewport(0, 0, self.res, self.res)
+        gl.glViewport(0, 0, self.resolution, self.resolution)
         gl.glDisable(gl.GL_CULL_FACE)
         gl.glDisable(gl.GL_MULTISAMPLE)
         gl.glDisable(gl.GL_BLEND)
@@ -407,7 +367,7 @@ class _Rasterizer:
 
     def render(self, world_to_camera: np.ndarray, projection: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rasterise one view: (H, W) float32 depth (-z_cam, 0 = none) and (H, W) int64 face id (-1 = none)."""
-        gl, r = self.gl, self.res
+        gl, r = self.gl, self.resolution
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self.fbo)
         gl.glClearColor(0.0, 0.0, 0.0, 0.0)
         gl.glClearDepth(1.0)
@@ -513,7 +473,7 @@ def capture(mesh: trimesh.Trimesh, views: int = 64, resolution: int = 256, dista
         raise ValueError(f"fov_y_degrees must be in (0, 180), got {fov_y_degrees}")
     w2c, _ = camera_rig(views, distance, seed)
     proj = perspective(fov_y_degrees, 1.0, NEAR_FACTOR * distance, FAR_FACTOR * distance)
-    rays = pixel_rays(resolution, fov_y_degrees)
+    rays = pixel_rays(resolution, resolution, fov_y_degrees, ndc=True)
     rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
     normals = _unit_face_normals(v, f)
 

@@ -29,6 +29,13 @@ do not share an edge with the closed part, wound consistently and facing the inp
 where sheets meet at an edge or a vertex, each gets its own copy of the vertices (nothing moves, so the
 Chamfer distance does not change). Where the input samples a closed surface the result is watertight and
 2-manifold; the figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
+
+Multi-view filters (`filtered_faces`, `extract_filtered`; the interior rules of
+`dmesh.recon.config.INTERIOR_MODES`): "apex" is "no_interior" (a face whose two tets have a real apex is
+inside a solid block); "sheet" is "sheet"; "visible" keeps the faces that are the first hit of some pixel
+ray of some camera when the mesh is drawn opaque (`visible_faces`, `hard_render`); "both" is "no_interior"
+then "visible"; "none" keeps every real face. The depth filter (`depth_consistent_faces`), applied before
+the visibility test, keeps the faces whose centroid lies on the captured depth of some view.
 """
 from __future__ import annotations
 
@@ -36,6 +43,8 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from dmesh.camera import focal_length, to_pixels, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +79,8 @@ def _one_sheet(pd, real_tet: np.ndarray, boundary: np.ndarray, interior: np.ndar
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    from dmesh.solid import face_areas
+
     T = len(pd.tets)
     a, b = pd.face_tets[interior, 0], pd.face_tets[interior, 1]
     graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(T, T))
@@ -91,7 +102,7 @@ def _one_sheet(pd, real_tet: np.ndarray, boundary: np.ndarray, interior: np.ndar
     apex = pd.tets[np.maximum(outer, 0)].astype(np.int64).sum(1) - faces.sum(1)
     side = np.einsum("ij,ij->i", p[apex] - centre, normal[cluster]) > 0
     side &= outer >= 0
-    area = 0.5 * np.linalg.norm(np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]]), axis=1)
+    area = face_areas(p, faces)
     area_pos = np.bincount(cluster, area * side, n_comp)
     area_neg = np.bincount(cluster, area * ~side, n_comp)
     return ids[side == (area_pos >= area_neg)[cluster]]
@@ -227,11 +238,8 @@ def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool
     pd = pd if pd is not None else dm.power_diagram()
     walls = mesh_faces(pd, dm.reals.detach().numpy() > threshold, mode)
     if not orient:
-        return _trimesh(pd.points, pd.faces[walls])
-    result = surface(pd, walls, normals, config)
-    mesh = _trimesh(pd.points[result.vertices], result.faces)
-    mesh.metadata["surface"] = result.info
-    return mesh
+        return to_trimesh(pd.points, pd.faces[walls])
+    return _surface_mesh(pd, walls, normals, config)
 
 
 def surface_of_mesh(mesh, pd, normals=None, config: SurfaceConfig | None = None):
@@ -253,10 +261,15 @@ def surface_of_mesh(mesh, pd, normals=None, config: SurfaceConfig | None = None)
             raise ValueError(f"surface_of_mesh: {int((ids < 0).sum())} mesh faces are not faces of the "
                              f"triangulation")
         walls[ids] = True
+    return _surface_mesh(pd, walls, normals, config)
+
+
+def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None):
+    """`surface` of `walls` as a `trimesh.Trimesh` over the used points of `pd` (info in metadata["surface"])."""
     result = surface(pd, walls, normals, config)
-    out = _trimesh(pd.points[result.vertices], result.faces)
-    out.metadata["surface"] = result.info
-    return out
+    mesh = to_trimesh(pd.points[result.vertices], result.faces)
+    mesh.metadata["surface"] = result.info
+    return mesh
 
 
 def towards_cameras(points: np.ndarray, eyes: np.ndarray, limit: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
@@ -279,7 +292,122 @@ def towards_cameras(points: np.ndarray, eyes: np.ndarray, limit: int = 200_000) 
     return points, d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
 
 
-def _trimesh(points: np.ndarray, faces: np.ndarray):
+# ------------------------------------------------------------------------------------------------- multi-view
+
+#: The `mesh_faces` mode behind each multi-view interior rule (the others keep every real face).
+_INTERIOR_MODE = {"apex": "no_interior", "both": "no_interior", "sheet": "sheet"}
+
+
+def depth_consistent_faces(points: np.ndarray, faces: np.ndarray, world_to_camera: np.ndarray, fov_y_degrees: float,
+                           depth: np.ndarray, mask: np.ndarray, tolerance: float) -> np.ndarray:
+    """(F,) bool: faces whose centroid lies on the captured surface in at least one view.
+
+    A centroid is on the surface in view k when it projects to a mask pixel whose captured depth (-z_cam)
+    is within `tolerance` of its own. Interior faces lie behind the captured surface in every view that
+    sees their pixel, and floating ones project onto background: both fail. Unlike the "visible" test,
+    which trusts the mesh's own renders (an interior face seen through a pixel-wide crack survives it),
+    this one checks the input.
+
+    Args:
+        points: (N, 3) and faces (F, 3) in the frame of `world_to_camera` (V, 4, 4); depth, mask: (V, H, H)
+        captured images in the same frame's units; tolerance: distance along the view axis.
+    """
+    c = points[faces].mean(1)
+    h = depth.shape[1]
+    focal = focal_length(fov_y_degrees, h)
+    ok = np.zeros(len(faces), bool)
+    for k in range(len(world_to_camera)):
+        x = transform_points(c, world_to_camera[k])
+        z = -x[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = (np.floor(a) for a in to_pixels(x[:, 0], x[:, 1], z, focal, h, h))
+        idx = np.flatnonzero((z > 0) & (u >= 0) & (u < h) & (v >= 0) & (v < h))
+        iu, iv = u[idx].astype(np.int64), v[idx].astype(np.int64)
+        hit = mask[k, iv, iu] & (np.abs(z[idx] - depth[k, iv, iu]) <= tolerance)
+        ok[idx[hit]] = True
+    return ok
+
+
+def hard_render(points: np.ndarray, pd, keep: np.ndarray, cameras):
+    """Renders the faces of `keep` ((F,) bool over `pd.faces`) opaque, all others transparent, with the
+    tetrahedral walk (exact depth order; `dmesh.render.tet_render`).
+
+    A pixel's compositing stops at its first opaque face, so its fragment list holds exactly that face.
+
+    Returns:
+        seen: (F,) bool, faces of `keep` that are the first hit of some pixel ray of some camera;
+        diffuse, depth, alpha: (V, R, R) float32 images (as `dmesh.render.tet_render`).
+    """
+    import torch
+
+    from dmesh import native
+
+    opacity = keep.astype(np.float32)
+    seen = np.zeros(len(pd.faces), bool)
+    threads = max(1, torch.get_num_threads())
+    images = []
+    for cam in cameras:
+        raw = native.tet_render_forward(points, pd.tets, pd.faces, pd.face_tets, opacity, *cam.native_args(),
+                                        0.5, 1e-4, threads)
+        seen[np.asarray(raw.frag_face, dtype=np.int64)] = True
+        images.append((raw.diffuse, raw.depth, raw.alpha))
+    diffuse, depth, alpha = (np.stack(x) for x in zip(*images))
+    return seen & keep, diffuse, depth, alpha
+
+
+def visible_faces(points: np.ndarray, pd, keep: np.ndarray, cameras) -> np.ndarray:
+    """(F,) bool over `pd.faces`: faces of `keep` ((F,) bool) that are the first hit of some pixel ray of
+    some camera (see `hard_render`)."""
+    if not keep.any():
+        return np.zeros(len(pd.faces), bool)
+    return hard_render(points, pd, keep, cameras)[0]
+
+
+def filtered_faces(dm, threshold: float, pd, interior: str, cameras, render: bool = False, consistent=None):
+    """The multi-view extraction's faces (module docstring): (F,) bool over `pd.faces`, the count removed
+    from the real faces, and (with `render`, or when the visibility test ran) the hard render's (diffuse,
+    depth, alpha) from `cameras`, else None.
+
+    Args:
+        dm: `DMesh`; threshold: real value above which a point is real; pd: its `PowerDiagram`; interior: one
+            of `dmesh.recon.config.INTERIOR_MODES`; cameras: the `dmesh.camera.Camera`s of the visibility
+            test and the render; consistent: None, or a function (points, faces) -> (F,) bool of faces to
+            keep (`depth_consistent_faces`), applied before the visibility test.
+    """
+    real = dm.reals.detach().numpy() > threshold
+    keep = real[pd.faces].all(1)
+    before = int(keep.sum())
+    if interior in _INTERIOR_MODE:
+        keep = mesh_faces(pd, real, _INTERIOR_MODE[interior])
+    if consistent is not None and keep.any():
+        idx = np.flatnonzero(keep)
+        keep[idx] = consistent(dm.points.detach().double().numpy(), pd.faces[idx].astype(np.int64))
+    images = None
+    if interior in ("visible", "both") or render:
+        if cameras is None:
+            raise ValueError("the visibility test and the hard render need the cameras")
+        seen, *images = hard_render(dm.points.detach().numpy(), pd, keep, cameras)
+        if interior in ("visible", "both"):
+            keep = seen
+    return keep, before - int(keep.sum()), images
+
+
+def extract_filtered(dm, threshold: float = 0.5, pd=None, interior: str = "apex", cameras=None, consistent=None):
+    """The multi-view extraction of a DMesh (`filtered_faces`), as a trimesh over the used points (DMesh frame).
+
+    Args:
+        dm: `DMesh`; threshold, interior, cameras, consistent: as in `filtered_faces`; pd: its
+            `PowerDiagram` (None: a fresh one).
+    Returns:
+        (trimesh.Trimesh, number of real faces removed).
+    """
+    pd = pd if pd is not None else dm.power_diagram()
+    keep, removed, _ = filtered_faces(dm, threshold, pd, interior, cameras, consistent=consistent)
+    return to_trimesh(dm.points.detach().double().numpy(), pd.faces[keep]), removed
+
+
+def to_trimesh(points: np.ndarray, faces: np.ndarray):
+    """A `trimesh.Trimesh` of `faces` ((F, 3) indices) over the points they use (float64, unprocessed)."""
     import trimesh
 
     mesh = trimesh.Trimesh(np.array(points, dtype=np.float64), np.asarray(faces, dtype=np.int64).reshape(-1, 3),
@@ -296,5 +424,6 @@ def orient_faces(mesh) -> None:
     _orient(mesh)
 
 
-__all__ = ["MODES", "mesh_faces", "SurfaceConfig", "Surface", "surface", "extract", "surface_of_mesh",
+__all__ = ["MODES", "mesh_faces", "SurfaceConfig", "Surface", "surface", "extract", "surface_of_mesh", "to_trimesh",
+           "depth_consistent_faces", "hard_render", "visible_faces", "filtered_faces", "extract_filtered",
            "towards_cameras", "orient_faces"]

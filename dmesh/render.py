@@ -2,10 +2,8 @@
 
 Letters: N vertices, F faces, T tets, V views, H x W pixels.
 
-Conventions are those of the ground-truth capture (`datasets/capture.py`): an OpenGL camera
-(`world_to_camera` (4, 4) float64, looking down -Z), vertical field of view `fov_y_degrees` (65 by
-default), pixel (i, j) (row i from the top) sampling the ray through its centre, camera-space direction
-(x_ndc t, y_ndc t, -1) with t = tan(fov_y / 2), x_ndc = 2 (j + 0.5) / W - 1, y_ndc = 1 - 2 (i + 0.5) / H.
+Cameras, rays and pixels follow `dmesh.camera` (the conventions of the ground-truth capture,
+`datasets/capture.py`): an OpenGL `Camera` looking down -Z, each pixel sampling the ray through its centre.
 Outputs per pixel: diffuse = |n_f . d| (flat unit face normal, unit ray: two-sided Lambert with a
 headlight, albedo 1), depth = -z_cam of the surface, alpha = coverage; background 0 in all three.
 
@@ -33,8 +31,6 @@ per face for the forward, 500 for the backward) per calling thread between calls
 from __future__ import annotations
 
 import logging
-import math
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -42,79 +38,11 @@ import torch
 from torch.autograd.function import once_differentiable
 
 from dmesh import native
+from dmesh.camera import FOV_Y_DEGREES, Camera  # noqa: F401 - re-exported (the renderers' camera)
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Camera", "soft_render", "soft_render_views", "tet_render", "tet_render_views", "FOV_Y_DEGREES"]
-
-#: Default vertical field of view (degrees), that of `datasets.capture`.
-FOV_Y_DEGREES = 65.0
-
-
-@dataclass(frozen=True, eq=False)
-class Camera:
-    """One pinhole camera in the capture's conventions (module docstring).
-
-    Attributes:
-        world_to_camera: (4, 4) float64, OpenGL world-to-camera transform (camera looks down -Z).
-        fov_y_degrees: vertical field of view in (0, 180).
-        height: H >= 1 pixels.
-        width: W >= 1 pixels (square pixels: the horizontal half-angle follows from W / H).
-        near: faces with a corner nearer than this (camera-space depth) are not drawn, > 0.
-    """
-
-    world_to_camera: np.ndarray
-    fov_y_degrees: float = FOV_Y_DEGREES
-    height: int = 256
-    width: int = 256
-    near: float = 1e-2
-
-    def __post_init__(self):
-        m = np.ascontiguousarray(self.world_to_camera, dtype=np.float64)
-        if m.shape != (4, 4) or not np.isfinite(m).all():
-            raise ValueError(f"Camera.world_to_camera must be a finite (4, 4) matrix, got shape {m.shape}")
-        object.__setattr__(self, "world_to_camera", m)
-        if not 0.0 < float(self.fov_y_degrees) < 180.0:
-            raise ValueError(f"Camera.fov_y_degrees must be in (0, 180), got {self.fov_y_degrees}")
-        for name in ("height", "width"):
-            v = getattr(self, name)
-            if int(v) != v or not 1 <= int(v) <= 16384:
-                raise ValueError(f"Camera.{name} must be an integer in [1, 16384], got {v}")
-            object.__setattr__(self, name, int(v))
-        if not float(self.near) > 0.0:
-            raise ValueError(f"Camera.near must be positive, got {self.near}")
-
-    @property
-    def fov_y(self) -> float:
-        """Vertical field of view in radians."""
-        return math.radians(self.fov_y_degrees)
-
-    @classmethod
-    def from_views(cls, world_to_camera, fov_y_degrees: float = FOV_Y_DEGREES, resolution: int = 256,
-                   near: float = 1e-2) -> list["Camera"]:
-        """One camera per view of a (V, 4, 4) float64 `world_to_camera` stack, square images."""
-        w2c = np.asarray(world_to_camera, dtype=np.float64)
-        if w2c.ndim != 3 or w2c.shape[1:] != (4, 4):
-            raise ValueError(f"world_to_camera must have shape (V, 4, 4), got {w2c.shape}")
-        return [cls(m, fov_y_degrees, resolution, resolution, near) for m in w2c]
-
-    @classmethod
-    def from_multiview(cls, views, near: float = 1e-2) -> list["Camera"]:
-        """The cameras of a `datasets.capture.MultiView` (or anything with its three attributes)."""
-        return cls.from_views(views.world_to_camera, views.fov_y_degrees, views.resolution, near)
-
-    def rays(self) -> np.ndarray:
-        """(H, W, 3) float64 camera-space directions through the pixel centres, z = -1 (not unit)."""
-        t = math.tan(self.fov_y / 2.0)
-        f = 0.5 * self.height / t
-        u = np.arange(self.width) + 0.5
-        v = np.arange(self.height) + 0.5
-        d = np.empty((self.height, self.width, 3))
-        d[..., 0] = ((u - 0.5 * self.width) / f)[None, :]
-        d[..., 1] = (-(v - 0.5 * self.height) / f)[:, None]
-        d[..., 2] = -1.0
-        return d
-
 
 def _threads(num_threads: int | None) -> int:
     return int(num_threads) if num_threads else max(1, torch.get_num_threads())
@@ -160,8 +88,15 @@ def _as_tensor(x, dtype=None) -> torch.Tensor:
     return x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), dtype=dtype)
 
 
-def _camera_args(camera: Camera) -> tuple:
-    return (camera.world_to_camera, camera.fov_y, camera.height, camera.width, camera.near)
+def _images(raw) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A native forward's (diffuse, depth, alpha) images as tensors."""
+    return torch.from_numpy(raw.diffuse), torch.from_numpy(raw.depth), torch.from_numpy(raw.alpha)
+
+
+def _output_grads(shape: tuple[int, int], grads) -> list[torch.Tensor]:
+    """The gradients of (diffuse, depth, alpha) as float32 images, zeros for an unused output."""
+    zero = torch.zeros(shape, dtype=torch.float32)
+    return [zero if x is None else x.float() for x in grads]
 
 
 class _SoftRasterize(torch.autograd.Function):
@@ -170,20 +105,18 @@ class _SoftRasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, verts, opacity, faces, camera, settings):
         # settings = (edge_width, min_opacity, t_min, num_threads)
-        raw = native.soft_render_forward(verts, faces, opacity, *_camera_args(camera), *settings)
+        raw = native.soft_render_forward(verts, faces, opacity, *camera.native_args(), *settings)
         ctx.camera, ctx.settings, ctx.stats = camera, settings, raw.stats
         ctx.save_for_backward(verts, opacity, faces, torch.from_numpy(raw.frag_face),
                               torch.from_numpy(raw.pix_range))
-        return torch.from_numpy(raw.diffuse), torch.from_numpy(raw.depth), torch.from_numpy(raw.alpha)
+        return _images(raw)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, g_diffuse, g_depth, g_alpha):
         verts, opacity, faces, frag_face, pix_range = ctx.saved_tensors
-        shape = (ctx.camera.height, ctx.camera.width)
-        zero = torch.zeros(shape, dtype=torch.float32)
-        g = [zero if x is None else x.float() for x in (g_diffuse, g_depth, g_alpha)]
-        gv, go = native.soft_render_backward(verts, faces, opacity, *_camera_args(ctx.camera), *ctx.settings,
+        g = _output_grads((ctx.camera.height, ctx.camera.width), (g_diffuse, g_depth, g_alpha))
+        gv, go = native.soft_render_backward(verts, faces, opacity, *ctx.camera.native_args(), *ctx.settings,
                                              frag_face, pix_range, *g)
         grad_verts = torch.from_numpy(gv).to(verts.dtype) if ctx.needs_input_grad[0] else None
         grad_opacity = torch.from_numpy(go).to(opacity.dtype) if ctx.needs_input_grad[1] else None
@@ -212,7 +145,7 @@ def soft_render(verts, faces, opacity, camera: Camera, *, edge_width: float = 1.
 
     Example:
         >>> import torch; from dmesh.render import Camera, soft_render
-        >>> from datasets.capture import look_at
+        >>> from dmesh.camera import look_at
         >>> cam = Camera(look_at((0.0, 0.0, 2.0)), height=32, width=32)
         >>> v = torch.tensor([[-.5, -.5, 0.], [.5, -.5, 0.], [0., .5, 0.]], requires_grad=True)
         >>> out = soft_render(v, torch.tensor([[0, 1, 2]]), torch.tensor([0.8]), cam)
@@ -245,18 +178,17 @@ class _TetRasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, opacity, verts, tets, faces, face_tets, camera, settings):
         # settings = (min_opacity, t_min, num_threads)
-        raw = native.tet_render_forward(verts, tets, faces, face_tets, opacity, *_camera_args(camera), *settings)
+        raw = native.tet_render_forward(verts, tets, faces, face_tets, opacity, *camera.native_args(), *settings)
         ctx.shape, ctx.num_threads, ctx.stats = (camera.height, camera.width), settings[2], raw.stats
         ctx.save_for_backward(opacity, torch.from_numpy(raw.frag_face), torch.from_numpy(raw.frag_diffuse),
                               torch.from_numpy(raw.frag_depth), torch.from_numpy(raw.pix_range))
-        return torch.from_numpy(raw.diffuse), torch.from_numpy(raw.depth), torch.from_numpy(raw.alpha)
+        return _images(raw)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, g_diffuse, g_depth, g_alpha):
         opacity, frag_face, frag_diffuse, frag_depth, pix_range = ctx.saved_tensors
-        zero = torch.zeros(ctx.shape, dtype=torch.float32)
-        g = [zero if x is None else x.float() for x in (g_diffuse, g_depth, g_alpha)]
+        g = _output_grads(ctx.shape, (g_diffuse, g_depth, g_alpha))
         go = native.tet_render_backward(opacity, frag_face, frag_diffuse, frag_depth, pix_range, *g,
                                         ctx.num_threads)
         # one gradient per forward input: opacity, verts, tets, faces, face_tets, camera, settings

@@ -85,7 +85,7 @@ def test_sphere_depth_mask_and_diffuse():
 def _ray_cast_view(mesh, mv, k):
     """Reference: trimesh ray casting through each pixel centre of view k (first hit)."""
     c2w = np.linalg.inv(mv.world_to_camera[k])
-    d_cam = cap.pixel_rays(mv.resolution, mv.fov_y_degrees).reshape(-1, 3)
+    d_cam = cap.pixel_rays(mv.resolution, mv.resolution, mv.fov_y_degrees, ndc=True).reshape(-1, 3)
     d_world = d_cam @ c2w[:3, :3].T
     origins = np.broadcast_to(c2w[:3, 3], d_world.shape)
     locs, ray_idx, tri_idx = mesh.ray.intersects_location(origins, d_world, multiple_hits=True)

@@ -37,6 +37,32 @@ def test_flat_real_tet_keeps_its_larger_sheet():
     assert sorted(map(sorted, sheet.tolist())) == sorted(map(sorted, larger.tolist()))
 
 
+def _apex_interior(pd, real):
+    """Upstream's `remove_invisible` rule: faces whose two tets both have a real apex (the tet's vertex not in
+    the face); hull faces never."""
+    ft = pd.face_tets.astype(np.int64)
+    out = ft[:, 1] >= 0
+    inner = np.flatnonzero(out)
+    fsum = pd.faces[inner].astype(np.int64).sum(1)
+    for side in (0, 1):
+        apex = pd.tets[ft[inner, side]].astype(np.int64).sum(1) - fsum
+        out[inner] &= real[apex]
+    return out
+
+
+def test_no_interior_is_the_apex_rule_on_random_diagrams():
+    """The multi-view "apex" rule (real faces minus those with two real apexes) is "no_interior"."""
+    rng = np.random.default_rng(7)
+    for trial in range(30):
+        n = int(rng.integers(12, 80))
+        pts = rng.random((n, 3))
+        weights = 0.01 * rng.random(n) if trial % 2 else None
+        pd = wdt.PowerDiagram.from_points(pts, weights)
+        real = rng.random(n) < rng.uniform(0.3, 0.95)
+        want = real[pd.faces].all(1) & ~_apex_interior(pd, real)
+        assert want.any() and np.array_equal(mesh_faces(pd, real, "no_interior"), want)
+
+
 def test_sheet_of_a_sampled_torus_is_closed_and_manifold():
     from datasets import normalize, sampling, synthetic
 

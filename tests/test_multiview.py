@@ -18,8 +18,10 @@ import torch
 from datasets import capture as cap
 from datasets import synthetic
 from datasets.normalize import normalize
-from dmesh.recon.multiview import (MultiViewConfig, check_views, depth_channel, depth_consistent_faces, downsample,
-                                   interior_faces, reconstruct, soft_band_targets, visible_faces)
+from dmesh.camera import eyes as camera_eyes
+from dmesh.extract import depth_consistent_faces, mesh_faces, visible_faces
+from dmesh.recon.multiview import MultiViewConfig, reconstruct
+from dmesh.recon.views import check_views, depth_channel, downsample, soft_band_targets
 
 
 _NO_GL = cap.gl_problem()
@@ -129,8 +131,7 @@ def test_band_targets_make_the_soft_fit_unbiased(sphere, sphere_views):
 
     res, width = 48, 1.0
     vw = check_views(sphere_views)
-    eyes = -np.einsum("vji,vj->vi", vw.world_to_camera[:, :3, :3], vw.world_to_camera[:, :3, 3])
-    far = np.linalg.norm(eyes, axis=1) + 2.0
+    far = np.linalg.norm(camera_eyes(vw.world_to_camera), axis=1) + 2.0
     channel = far[:, None, None] * vw.mask - vw.depth.astype(np.float64)
     plain = [torch.from_numpy(downsample(x, res)) for x in (vw.diffuse, channel)]
     band = [torch.from_numpy(x) for x in soft_band_targets([vw.diffuse, channel], vw.mask, res, width)]
@@ -151,14 +152,14 @@ def test_band_targets_make_the_soft_fit_unbiased(sphere, sphere_views):
 
 
 def test_look_at_point_of_the_capture_rig():
-    from dmesh.recon.multiview import _look_at_point
+    from dmesh.camera import look_at_point
 
     w2c, _ = cap.camera_rig(64)
     shifted = w2c.copy()
     shifted[:, :3, 3] -= np.einsum("vij,j->vi", w2c[:, :3, :3], [0.3, -0.2, 0.1])  # rig moved to (0.3, -0.2, 0.1)
-    assert np.allclose(_look_at_point(w2c), 0.0, atol=1e-9)
-    assert np.allclose(_look_at_point(shifted), [0.3, -0.2, 0.1], atol=1e-9)
-    assert _look_at_point(np.repeat(w2c[:1], 3, axis=0)) is None  # one axis: no single nearest point
+    assert np.allclose(look_at_point(w2c), 0.0, atol=1e-9)
+    assert np.allclose(look_at_point(shifted), [0.3, -0.2, 0.1], atol=1e-9)
+    assert look_at_point(np.repeat(w2c[:1], 3, axis=0)) is None  # one axis: no single nearest point
 
 
 @needs_gl
@@ -167,18 +168,18 @@ def test_lopsided_object_falls_back_to_the_look_at_centre():
     sits inside the object's box; the cameras' look-at point (the vertex mean) keeps every camera out."""
     from conftest import shared_mesh
 
-    from dmesh.recon.multiview import BOX_MARGIN, MIN_BOX, _lifted_points, _normalisation
+    from dmesh.recon.views import BOX_MARGIN, MIN_BOX, lifted_points, normalisation
 
     from datasets.meshes import load_mesh
 
     gt, _ = normalize(load_mesh(shared_mesh("open/face.off")), radius=1.0)
     vw = check_views(cap.capture(gt, views=64, resolution=64))
-    pts = _lifted_points(vw)
+    pts = lifted_points(vw)
     box_centre = 0.5 * (pts.min(0) + pts.max(0))
     radius = np.linalg.norm(pts - box_centre, axis=1).max()
-    eyes = -np.einsum("vji,vj->vi", vw.world_to_camera[:, :3, :3], vw.world_to_camera[:, :3, 3])
+    eyes = camera_eyes(vw.world_to_camera)
     assert BOX_MARGIN * np.abs((eyes - box_centre) / radius).max(1).min() < MIN_BOX  # the box centre fails
-    center, scale, _, eyes_n = _normalisation(vw)
+    center, scale, _, eyes_n = normalisation(vw)
     cam_box = np.abs(eyes_n).max(1).min()
     assert np.allclose(center, 0.0, atol=1e-6) and BOX_MARGIN * cam_box >= MIN_BOX
 
@@ -217,16 +218,18 @@ def _interior_naive(pd, real):
     return out
 
 
-def test_interior_faces_need_two_real_apexes():
+def test_apex_rule_drops_faces_with_two_real_apexes():
+    """The "apex" interior rule is `mesh_faces(..., "no_interior")`: real faces minus those whose two tets
+    both have a real apex."""
     pts, pd = _cube_with_centre()
     assert len(pd.tets) == 12 and pd.is_hull.sum() == 12
     every = np.ones(len(pts), bool)
-    assert (interior_faces(pd, every) == ~pd.is_hull).all()   # all real: every inner face is interior
+    assert (mesh_faces(pd, every, "no_interior") == pd.is_hull).all()   # all real: only the hull is left
     for off in (0, 5, 8):                          # one imaginary point (a corner, or the centre)
         real = every.copy()
         real[off] = False
-        assert (interior_faces(pd, real) == _interior_naive(pd, real)).all()
-    assert interior_faces(pd, np.arange(9) == 8).sum() == 0   # only the centre real: no apex pair is real
+        want = real[pd.faces].all(1) & ~_interior_naive(pd, real)
+        assert (mesh_faces(pd, real, "no_interior") == want).all()
 
 
 def test_visible_faces_are_the_hull_of_an_opaque_solid():

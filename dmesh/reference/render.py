@@ -13,16 +13,26 @@ from __future__ import annotations
 
 import torch
 
-from dmesh.render import Camera
+from dmesh.camera import Camera, to_pixels, transform_points
 
 
 def _camera_space(verts: torch.Tensor, camera: Camera) -> torch.Tensor:
-    m = torch.as_tensor(camera.world_to_camera, dtype=torch.float64)
-    return verts.to(torch.float64) @ m[:3, :3].T + m[:3, 3]
+    return transform_points(verts.to(torch.float64), torch.as_tensor(camera.world_to_camera, dtype=torch.float64))
 
 
 def _rays(camera: Camera) -> torch.Tensor:
     return torch.as_tensor(camera.rays(), dtype=torch.float64).reshape(-1, 3)
+
+
+def _images(out: dict, camera: Camera) -> dict:
+    """The per-chunk pixel values of `out` as (H, W) images."""
+    shape = (camera.height, camera.width)
+    return {k: torch.cat(v).reshape(shape) for k, v in out.items()}
+
+
+def _append(out: dict, values) -> None:
+    for key, value in zip(("diffuse", "depth", "alpha"), values):
+        out[key].append(value)
 
 
 def _composite(key, a, c, z, t_min: float):
@@ -56,13 +66,12 @@ def soft_render_naive(verts, faces, opacity, camera: Camera, *, edge_width: floa
     faces = torch.as_tensor(faces, dtype=torch.long)
     opacity = torch.as_tensor(opacity).to(torch.float64)
     P = _camera_space(torch.as_tensor(verts), camera)
-    f = 0.5 * camera.height / torch.tan(torch.tensor(camera.fov_y / 2.0, dtype=torch.float64))
-    cx, cy = 0.5 * camera.width, 0.5 * camera.height
     tri = P[faces]                                           # (F, 3, 3)
     vdepth = -tri[..., 2]                                    # (F, 3)
     drawn = (opacity > min_opacity) & (vdepth >= camera.near).all(1)
     safe = torch.where(drawn[:, None], vdepth, torch.ones_like(vdepth))
-    q = torch.stack([cx + f * tri[..., 0] / safe, cy - f * tri[..., 1] / safe], -1)  # (F, 3, 2)
+    # (F, 3, 2) pixel coordinates of the corners
+    q = torch.stack(to_pixels(tri[..., 0], tri[..., 1], safe, camera.focal, camera.width, camera.height), -1)
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     n = torch.cross(e1, e2, dim=1)                                                    # (F, 3)
     degenerate = n.norm(dim=1) <= 1e-12 * e1.norm(dim=1) * e2.norm(dim=1)             # no normal: c 0, z zmax
@@ -107,12 +116,8 @@ def soft_render_naive(verts, faces, opacity, camera: Camera, *, edge_width: floa
                         torch.zeros_like(den))
         key = torch.where(cov < 1.0, z + (zmax - zmin)[None], z)  # band fragments sort one depth extent back
         z_sort = torch.where(a > 0, key, torch.full_like(z, float("inf")))
-        dd, zz, aa = _composite(z_sort, a, c, z, t_min)
-        out["diffuse"].append(dd)
-        out["depth"].append(zz)
-        out["alpha"].append(aa)
-    shape = (camera.height, camera.width)
-    return {k: torch.cat(v).reshape(shape) for k, v in out.items()}
+        _append(out, _composite(z_sort, a, c, z, t_min))
+    return _images(out, camera)
 
 
 def tet_render_naive(verts, faces, opacity, camera: Camera, *, min_opacity: float = 1e-3,
@@ -147,9 +152,5 @@ def tet_render_naive(verts, faces, opacity, camera: Camera, *, min_opacity: floa
         a = torch.where(hit & (opacity[None] > min_opacity), opacity[None].expand_as(depth), torch.zeros_like(depth))
         c = (d @ n.T).abs() / (torch.where(nlen > 0, nlen, torch.ones_like(nlen))[None] * d.norm(dim=1, keepdim=True))
         z_sort = torch.where(a > 0, depth, torch.full_like(depth, float("inf")))
-        dd, zz, aa = _composite(z_sort, a, c, depth, t_min)
-        out["diffuse"].append(dd)
-        out["depth"].append(zz)
-        out["alpha"].append(aa)
-    shape = (camera.height, camera.width)
-    return {k: torch.cat(v).reshape(shape) for k, v in out.items()}
+        _append(out, _composite(z_sort, a, c, depth, t_min))
+    return _images(out, camera)
