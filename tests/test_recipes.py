@@ -6,17 +6,19 @@ import pandas as pd
 import pytest
 import torch
 
-from dmesh.recon import multiview, pointcloud
 from eval.reports.recipes import recipe_markdown, recipe_rows
 
 
-@pytest.mark.parametrize("module", [pointcloud, multiview])
-def test_every_preset_has_a_recipe(module):
-    assert set(module.RECIPES) == set(module.PRESETS)
-    for steps, text in module.RECIPES.values():
+@pytest.mark.parametrize("kind", ["pointcloud", "multiview"])
+def test_every_preset_has_a_recipe(kind):
+    from dmesh.recon import config
+
+    recipes = getattr(config, f"{kind.upper()}_RECIPES")
+    assert set(recipes) == set(getattr(config, f"{kind.upper()}_PRESETS"))
+    for steps, text in recipes.values():
         assert isinstance(steps, bool) and len(text) > 20
     # The rows the harness shows by default are the fast presets: one takes steps, one does not.
-    assert pointcloud.RECIPES["fast"][0] is False and multiview.RECIPES["fast"][0] is True
+    assert config.POINTCLOUD_RECIPES["fast"][0] is False and config.MULTIVIEW_RECIPES["fast"][0] is True
 
 
 def test_recipe_rows_name_preset_kind_and_overrides():

@@ -1,6 +1,9 @@
 """Reconstruction procedures built on `dmesh.DMesh` (DESIGN.md section 6).
 
 - `config`: the settings, presets and recipes of every procedure (torch-free);
+- `views`: multi-view input checks, normalisation, resampling and image targets;
+- `init`: the first points (seeds, Voronoi vertices, poles, carving);
+- `optim`: the bounded Adam step;
 - `loop`: the one optimisation loop (a step function per phase, history, checkpoints);
 - `pointcloud`, `multiview`, `mesh_to_dmesh`: the procedures, each supplying its step functions.
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numbers
 from dataclasses import dataclass, fields
-from typing import Mapping
+from typing import ClassVar, Mapping
 
 #: Implementations of the step's kernels (the expected Chamfer and the Delta recomputation).
 KERNELS = ("native", "reference")
@@ -42,7 +42,8 @@ def as_tuple(value, cast, name: str) -> tuple:
 
 class Presets:
     """Mixin of the config classes: `from_preset`, the one way from a preset name and overrides to a config
-    (the CLI, the harness methods and the sweeps all use it)."""
+    (the CLI, the harness methods and the sweeps all use it), `preset` (the class lists its `PRESETS`, each a
+    classmethod), and the `ProbabilityConfig` the settings imply."""
 
     @classmethod
     def from_preset(cls, preset: str | None = None, overrides: Mapping | None = None, *, owner: str = ""):
@@ -59,12 +60,30 @@ class Presets:
             raise ValueError(f"{owner + ': ' if owner else ''}unknown config keys {unknown}; known: {sorted(known)}")
         return cls.preset(str(preset or DEFAULT_PRESET), **overrides)
 
+    @classmethod
+    def preset(cls, name: str, **overrides):
+        """The config of preset `name` (one of the class's `PRESETS`) with field `overrides`."""
+        if name not in cls.PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(cls.PRESETS)}")
+        return getattr(cls, name)(**overrides)
+
+    def probability_config(self):
+        """The `dmesh.probability.ProbabilityConfig` of these settings."""
+        from dmesh.probability import ProbabilityConfig
+
+        extra = {"knn_thresholds": self.knn_thresholds} if hasattr(self, "knn_thresholds") else {}
+        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real, knn_interval=self.knn_interval,
+                                 knn_k=self.knn_k, active_band=self.active_band, impl=self.kernels, **extra)
+
 
 # ------------------------------------------------------------------------------------------- point clouds
 
 @dataclass(frozen=True)
 class PointCloudConfig(Presets):
-    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
+    """Settings of `dmesh.recon.pointcloud.reconstruct` (defaults: the paper's, see `paper()`); lengths in the
+    unit-radius frame."""
+
+    PRESETS: ClassVar[tuple] = POINTCLOUD_PRESETS
 
     num_init: int = 10_000          # input points used as real seeds
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
@@ -154,8 +173,7 @@ class PointCloudConfig(Presets):
         base = dict(num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=50_000,
                     num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16, lambda_weight=0.0,
                     real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
-        base.update(overrides)
-        return cls(**base)
+        return cls(**{**base, **overrides})
 
     @classmethod
     def noisy(cls, **overrides) -> "PointCloudConfig":
@@ -169,8 +187,7 @@ class PointCloudConfig(Presets):
                     num_samples=100_000, steps_phase1=20, steps_phase2=10, lr=3e-4, update_bound=3e-4,
                     train_phase1=("points",), k_max=16, lambda_weight=0.0, real_ramp_steps=0,
                     freeze_phase2=(0, 5), save_every=10)
-        base.update(overrides)
-        return cls(**base)
+        return cls(**{**base, **overrides})
 
     @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
@@ -179,24 +196,7 @@ class PointCloudConfig(Presets):
         base = dict(num_init=1000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=4000,
                     num_samples=4000, steps_phase1=2, steps_phase2=15, lr=3e-5, update_bound=3e-5, k_max=12, lambda_weight=0.0,
                     real_ramp_steps=2, freeze_phase2=(0, 8), knn_interval=5, save_every=10)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> "PointCloudConfig":
-        """`paper`, `fast`, `noisy` or `tiny`."""
-        if name not in POINTCLOUD_PRESETS:
-            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(POINTCLOUD_PRESETS)}")
-        return getattr(cls, name)(**overrides)
-
-    def probability_config(self):
-        """The `dmesh.probability.ProbabilityConfig` of these settings."""
-        from dmesh.probability import ProbabilityConfig
-
-        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
-                                 knn_interval=self.knn_interval, knn_k=self.knn_k,
-                                 knn_thresholds=self.knn_thresholds, active_band=self.active_band,
-                                 impl=self.kernels)
+        return cls(**{**base, **overrides})
 
     def step_config(self):
         """The `dmesh.recon.optim.StepConfig` of these settings."""
@@ -246,7 +246,10 @@ def _tuple(value, n: int, name: str) -> tuple:
 
 @dataclass(frozen=True)
 class MultiViewConfig(Presets):
-    """Settings of `reconstruct` (defaults: the paper's, see `paper()`); lengths in the unit-radius frame."""
+    """Settings of `dmesh.recon.multiview.reconstruct` (defaults: the paper's, see `paper()`); lengths in the
+    unit-radius frame."""
+
+    PRESETS: ClassVar[tuple] = MULTIVIEW_PRESETS
 
     init: str = "grid"               # epoch 0 starts from a "grid" (upstream) or the "depth" pixels' DMesh
     init_points: int = 100_000       # "depth": lifted pixels given to the point-cloud reconstruction
@@ -367,8 +370,7 @@ class MultiViewConfig(Presets):
                     lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=None,
                     lambda_weight=0.0, real_ramp_steps=10, freeze_phase2=(0,), interior="both", select_best=True,
                     depth_tolerance=0.02, save_every=10)
-        base.update(overrides)
-        return cls(**base)
+        return cls(**{**base, **overrides})
 
     @classmethod
     def depth(cls, **overrides) -> "MultiViewConfig":
@@ -377,8 +379,7 @@ class MultiViewConfig(Presets):
         capture's resolution, the depth-consistency filter). No image-loss step (docs/preset_choices.md)."""
         base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="both",
                     depth_tolerance=0.02, select_best=False, save_every=10)
-        base.update(overrides)
-        return cls(**base)
+        return cls(**{**base, **overrides})
 
     @classmethod
     def refine(cls, **overrides) -> "MultiViewConfig":
@@ -391,8 +392,7 @@ class MultiViewConfig(Presets):
                     lr_first=REFINE_LR, bound_first=REFINE_LR, max_real_first=3e-3, views_per_step=6,
                     resolution=None, lambda_weight=0.0, lambda_real_start=1e-3, real_ramp_steps=0,
                     freeze_phase2=(0,), interior="both", depth_tolerance=0.02, select_best=True, save_every=10)
-        base.update(overrides)
-        return cls(**base)
+        return cls(**{**base, **overrides})
 
     @classmethod
     def tiny(cls, **overrides) -> "MultiViewConfig":
@@ -402,23 +402,7 @@ class MultiViewConfig(Presets):
                     lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=4, resolution=48,
                     lambda_weight=0.0, real_ramp_steps=4, freeze_phase2=(0,), interior="both", select_best=True,
                     depth_tolerance=0.1, save_every=10)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def preset(cls, name: str, **overrides) -> "MultiViewConfig":
-        """`paper`, `fast`, `depth`, `refine` or `tiny`."""
-        if name not in MULTIVIEW_PRESETS:
-            raise ValueError(f"unknown preset {name!r}; choose from {', '.join(MULTIVIEW_PRESETS)}")
-        return getattr(cls, name)(**overrides)
-
-    def probability_config(self):
-        """The `dmesh.probability.ProbabilityConfig` of these settings."""
-        from dmesh.probability import ProbabilityConfig
-
-        return ProbabilityConfig(alpha_wdt=self.alpha_wdt, alpha_real=self.alpha_real,
-                                 knn_interval=self.knn_interval, knn_k=self.knn_k, active_band=self.active_band,
-                                 impl=self.kernels)
+        return cls(**{**base, **overrides})
 
     def step_config(self, epoch: int):
         """The `dmesh.recon.optim.StepConfig` of `epoch`."""

@@ -65,26 +65,21 @@ from typing import Callable
 import numpy as np
 import torch
 
-from dmesh.camera import look_at_point as _look_at_point  # noqa: F401 - re-exported (old name)
 from dmesh.extract import (SurfaceConfig, depth_consistent_faces, extract_filtered, filtered_faces, surface_of_mesh,
-                           to_trimesh, towards_cameras, visible_faces)
+                           to_trimesh, towards_cameras)
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.model import DMesh
 from dmesh.probability import dmin
-from dmesh.recon.config import (INIT_MODES, INTERIOR_MODES, MULTIVIEW_PRESETS as PRESETS,  # noqa: F401 - re-exported
-                                 MULTIVIEW_RECIPES as RECIPES, REFINE_LR, REFINE_STEPS, MultiViewConfig)
+from dmesh.recon.config import MULTIVIEW_PRESETS as PRESETS, MultiViewConfig
 from dmesh.recon.init import seeds_and_voronoi
 from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
 from dmesh.recon.optim import BoundedAdam
-from dmesh.recon.views import (BOX_MARGIN, DEPTH_SPAN, MIN_BOX, Views, check_views, depth_channel,  # noqa: F401
-                               downsample, image_targets, lifted_points, normalisation, soft_band_targets)
+from dmesh.recon.views import (BOX_MARGIN, Views, check_views, depth_channel, image_targets, lifted_points,
+                               normalisation)
 from dmesh.render import Camera, soft_render_views, tet_render_views
 from dmesh.sampling import sample_surface
 
 log = logging.getLogger(__name__)
-
-# Old names of what moved (`dmesh.recon.views`, `dmesh.extract`), kept for their importers.
-_Views, _lifted_points, _normalisation, extract = Views, lifted_points, normalisation, extract_filtered
 
 
 @dataclass
@@ -425,5 +420,4 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
     return run.output()
 
 
-__all__ = ["MultiViewConfig", "MultiViewResult", "PRESETS", "reconstruct", "check_views", "downsample",
-           "extract", "visible_faces", "sample_surface"]
+__all__ = ["MultiViewConfig", "MultiViewResult", "PRESETS", "reconstruct"]

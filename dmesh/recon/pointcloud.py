@@ -37,7 +37,7 @@ from dmesh.extract import SurfaceConfig, extract, orient_faces  # extract, orien
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
-from dmesh.recon.config import KERNELS, POINTCLOUD_PRESETS as PRESETS, POINTCLOUD_RECIPES as RECIPES, PointCloudConfig
+from dmesh.recon.config import POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
 from dmesh.recon.init import carve_far_faces, seeds_and_voronoi
 from dmesh.recon.loop import (Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)

@@ -99,6 +99,7 @@ def _multiview(name: str) -> list[dict]:
     from datasets import capture
     from dmesh.extract import SurfaceConfig, orient_faces, surface_of_mesh, towards_cameras
     from dmesh.recon import multiview as mv
+    from dmesh.recon.views import check_views, lifted_points, normalisation
 
     gt = _gt(name)
     views = capture.capture(gt, views=64, resolution=256)
@@ -108,13 +109,13 @@ def _multiview(name: str) -> list[dict]:
     orient_faces(before)
     # The call site of `reconstruct` (orient=True), on this run's state.
     t0 = time.perf_counter()
-    vw = mv.check_views(views)
-    _, _, _, eyes = mv._normalisation(vw)
+    vw = check_views(views)
+    _, _, _, eyes = normalisation(vw)
     seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
     mesh = res.mesh.copy()
     mesh.vertices = (np.asarray(mesh.vertices) - res.center) * res.scale
     after = surface_of_mesh(mesh, res.dmesh.power_diagram(),
-                            towards_cameras((mv._lifted_points(vw) - res.center) * res.scale, eyes[seen]),
+                            towards_cameras((lifted_points(vw) - res.center) * res.scale, eyes[seen]),
                             SurfaceConfig(seed=cfg.seed))
     seconds = time.perf_counter() - t0
     after.vertices = np.asarray(after.vertices) / res.scale + res.center

@@ -1,16 +1,15 @@
 """Which recipe made each DMesh row: gradient steps or an initialisation, and how it differs from the paper.
 
-The descriptions live beside the presets (`RECIPES` in `dmesh.recon.pointcloud` and `dmesh.recon.multiview`);
+The descriptions live beside the presets (`POINTCLOUD_RECIPES` and `MULTIVIEW_RECIPES` in `dmesh.recon.config`);
 this module matches them to the rows of a report by the run's config label ("preset=paper", or "" for the
 method's default preset, `fast`).
 """
 from __future__ import annotations
 
-#: The DMesh harness methods with presets, by input kind, and the module whose RECIPES describe them.
-DMESH_METHODS = {"pointcloud": {"dmesh": "dmesh.recon.pointcloud"},
-                 "multiview": {"dmesh_mv": "dmesh.recon.multiview"}}
-#: The preset a DMesh method runs when the config names none (`default_config` of baselines/dmesh_*.py).
-DEFAULT_PRESET = "fast"
+from dmesh.recon.config import DEFAULT_PRESET, MULTIVIEW_RECIPES, POINTCLOUD_RECIPES
+
+#: The DMesh harness methods with presets, by input kind, and the recipes of their presets.
+DMESH_METHODS = {"pointcloud": {"dmesh": POINTCLOUD_RECIPES}, "multiview": {"dmesh_mv": MULTIVIEW_RECIPES}}
 
 
 def _preset(config_label: str) -> tuple[str, str]:
@@ -24,8 +23,6 @@ def _preset(config_label: str) -> tuple[str, str]:
 def recipe_rows(df, input_kind: str) -> list[dict]:
     """One row per DMesh configuration of `input_kind` in `df` (the store's dataframe): label, preset,
     "gradient steps" or "initialisation", and the recipe."""
-    import importlib
-
     from eval.reports.tables import display_name, method_label
 
     methods = DMESH_METHODS.get(input_kind, {})
@@ -34,7 +31,7 @@ def recipe_rows(df, input_kind: str) -> list[dict]:
     sub = df[(df["input_kind"] == input_kind) & df["method"].isin(list(methods))]
     rows = []
     for (method, label), _ in sub.groupby(["method", "config_label"], sort=True):
-        recipes = importlib.import_module(methods[method]).RECIPES
+        recipes = methods[method]
         preset, rest = _preset(label)
         steps, text = recipes.get(preset, (None, f"unknown preset {preset!r}"))
         if rest:
