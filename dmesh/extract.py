@@ -133,8 +133,9 @@ class SurfaceConfig:
                                # faces (by area) is an open part, not a solid (dmesh.solid.drop_open_regions)
     min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
     max_hole: int = 64         # holes of the closed part with at most this many edges are filled
+    max_crumb: int = 4         # pieces of sheet with at most this many faces (edge-connected) are dropped
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
-    clean: bool = True         # fill holes, drop fins, split where sheets meet; False: orient the faces only
+    clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
     seed: int = 0              # rotation of the walk directions
     workers: int = 1           # threads of the k-d tree queries (input normals)
@@ -148,7 +149,7 @@ class SurfaceConfig:
             raise ValueError(f"SurfaceConfig.min_thickness must be >= 0, got {self.min_thickness}")
         if int(self.neighbours) < 1:
             raise ValueError(f"SurfaceConfig.neighbours must be >= 1, got {self.neighbours}")
-        for name in ("max_hole", "repair_rounds"):
+        for name in ("max_hole", "max_crumb", "repair_rounds"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"SurfaceConfig.{name} must be >= 0, got {getattr(self, name)}")
 
@@ -164,7 +165,8 @@ class Surface:
             vertex per sheet: `dmesh.repair.split_fans`).
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, tets_flipped, closed_faces, holes_filled, hole_faces,
-            holes_left, fins_dropped, split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
+            holes_left, fins_dropped, crumbs_dropped, split_vertices, folds_dropped, sheet_faces; vote ("parity" or
+            "winding").
     """
 
     faces: np.ndarray
@@ -206,7 +208,10 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         closed = np.concatenate([closed, fill])
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
-        info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()))
+        crumbs = repair.crumbs(sheet, cfg.max_crumb)
+        sheet = sheet[~crumbs]
+        info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()),
+                    crumbs_dropped=int(crumbs.sum()))
     sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers)
     faces = np.concatenate([closed, sheet])
     vertices = np.arange(len(points))

@@ -346,6 +346,25 @@ def faces_on_edges(faces: np.ndarray, other: np.ndarray) -> np.ndarray:
     return hit.reshape(3, -1).any(0)
 
 
+def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
+    """(F,) bool: faces of the edge-connected pieces (faces joined through any shared edge) that have at most
+    `max_faces` faces: stray triangles of a sheet, which open a hole in no surface but make a closed mesh
+    read as not watertight."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    if F == 0 or max_faces < 1:
+        return np.zeros(F, bool)
+    _, inverse, _ = edge_table(f)
+    order = np.argsort(inverse, kind="stable")
+    same_edge = inverse[order[1:]] == inverse[order[:-1]]  # consecutive half-edges on one edge join faces
+    a, b = order[:-1][same_edge] % F, order[1:][same_edge] % F
+    _, comp = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(F, F)), directed=False)
+    return np.bincount(comp)[comp] <= max_faces
+
+
 def drop_crowding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) bool faces to keep: on each edge with more than two faces, the two largest.
 

@@ -1,16 +1,15 @@
-"""Shared fixtures. Tests write only under tmp_path and never assert on timings."""
+"""Shared fixtures (helpers are in common.py). Tests write only under tmp_path and never assert on timings."""
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
-#: Real test meshes live beside the checkout (never copied into the repository).
-SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+#: The multi-view test capture: few views at low resolution (the tiny preset optimises at 48 pixels).
+VIEWS, RESOLUTION = 16, 96
 
 
 @pytest.fixture
@@ -18,13 +17,22 @@ def rng():
     return np.random.default_rng(12345)
 
 
-def spacing_weights(rng: np.random.Generator, n: int, scale: float = 0.1) -> np.ndarray:
-    """Weights in [0, scale * h^2] with h = n^(-1/3): relative to the point spacing, so few are hidden."""
-    return rng.random(n) * scale * n ** (-2.0 / 3.0)
+@pytest.fixture(scope="module")
+def sphere():
+    """The synthetic sphere, normalised to radius 1 (the multi-view tests' object)."""
+    from datasets import synthetic
+    from datasets.normalize import normalize
+
+    gt, _ = normalize(synthetic.generate("sphere", seed=0), radius=1.0)
+    return gt
 
 
-def shared_mesh(rel: str) -> Path:
-    path = SHARED_MESHES / rel
-    if not path.exists():
-        pytest.skip(f"shared test mesh {rel} not found beside the checkout")
-    return path
+@pytest.fixture(scope="module")
+def sphere_views(sphere):
+    """The test capture of `sphere`; skips without headless OpenGL."""
+    from datasets import capture as cap
+
+    problem = cap.gl_problem()
+    if problem is not None:
+        pytest.skip(f"no headless OpenGL (OSMesa/EGL): {problem}")
+    return cap.capture(sphere, views=VIEWS, resolution=RESOLUTION)

@@ -1,6 +1,7 @@
-"""Native expected Chamfer (native/src/expected_chamfer.h) against the torch reference (dmesh.reference.chamfer),
-finite differences, SciPy's cKDTree and itself on other thread counts. Letters: G target points, S samples,
-K candidates per target row.
+"""Expected Chamfer (`dmesh.losses.chamfer`): by hand, adaptive K, the normal term, face sampling; the native
+kernel (native/src/expected_chamfer.h) against the torch reference (dmesh.reference.chamfer), finite
+differences, SciPy's cKDTree and itself on other thread counts. Letters: G target points, S samples, K
+candidates per target row.
 """
 from __future__ import annotations
 
@@ -12,9 +13,10 @@ import torch
 from scipy.spatial import cKDTree
 
 from dmesh import native
-from dmesh.losses.chamfer import ExpectedChamfer, SurfaceSamples, expected_distance
+from dmesh.losses.chamfer import (ExpectedChamfer, SurfaceSamples, chamfer_l1, expected_distance,
+                                  expected_min_distance, first_occurrence, sample_faces)
 from dmesh.reference.chamfer import target_term
-from helpers import assert_close
+from common import assert_close
 
 
 def _sphere(rng, n: int) -> np.ndarray:
@@ -213,3 +215,105 @@ def test_empty_samples_and_bad_impl():
     assert fig["empty"] and loss.item() == 0.0
     with pytest.raises(ValueError, match="impl must be one of"):
         ExpectedChamfer(np.zeros((3, 3)), impl="cuda")
+
+
+# ----------------------------------------------------------------------------- expected Chamfer by hand
+
+def _samples(points, prob=None, face=None):
+    pts = torch.as_tensor(points, dtype=torch.float64)
+    n = len(pts)
+    prob = torch.ones(n, dtype=torch.float64) if prob is None else torch.as_tensor(prob, dtype=torch.float64)
+    face = torch.arange(n) if face is None else torch.as_tensor(face)
+    return SurfaceSamples(pts, face, prob)
+
+
+def test_expected_min_distance_by_hand():
+    d = torch.tensor([[1.0, 2.0, 3.0]], dtype=torch.float64)
+    p = torch.tensor([[0.5, 0.5, 1.0]], dtype=torch.float64)
+    e, res = expected_min_distance(d, p, torch.tensor([[0, 1, 2]]))
+    assert e.item() == pytest.approx(0.5 * 1 + 0.25 * 2 + 0.25 * 3)
+    assert res.item() == pytest.approx(0.0)
+    # The second sample repeats the first one's face: it cannot be the nearest (at most one per face).
+    e, res = expected_min_distance(d, p, torch.tensor([[7, 7, 2]]))
+    assert e.item() == pytest.approx(0.5 * 1 + 0.5 * 3)
+    e, res = expected_min_distance(d[:, :2], p[:, :2], torch.tensor([[0, 1]]))
+    assert res.item() == pytest.approx(0.25)
+
+
+def test_first_occurrence():
+    ids = torch.tensor([[1, 2, 3, 2, 3, 4], [5, 5, 5, 5, 5, 5]])
+    want = torch.tensor([[1, 1, 1, 0, 0, 1], [1, 0, 0, 0, 0, 0]], dtype=torch.bool)
+    assert torch.equal(first_occurrence(ids), want)
+
+
+def test_all_probabilities_one_is_plain_chamfer(rng):
+    target = rng.random((300, 3))
+    ours = rng.random((200, 3))
+    ec = ExpectedChamfer(target, k_max=5)
+    loss, fig = ec(_samples(ours))
+    assert loss.item() == pytest.approx(chamfer_l1(target, ours), rel=1e-12)
+    assert fig["residual"] == 0.0
+
+
+def test_gradient_reaches_probabilities_and_positions(rng):
+    target = rng.random((100, 3))
+    pts = torch.tensor(rng.random((80, 3)), requires_grad=True)
+    prob = torch.full((80,), 0.6, dtype=torch.float64, requires_grad=True)
+    loss, _ = ExpectedChamfer(target, k_max=8)(SurfaceSamples(pts, torch.arange(80), prob))
+    loss.backward()
+    assert prob.grad.abs().sum() > 0 and pts.grad.abs().sum() > 0
+    assert torch.isfinite(prob.grad).all() and torch.isfinite(pts.grad).all()
+
+
+def test_adaptive_k():
+    target = np.zeros((1, 3))
+    ours = np.array([[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0]])
+    ec = ExpectedChamfer(target, k_max=3)
+    ec(_samples(ours, prob=[0.5, 0.5, 0.5]))            # mass 1/8 left beyond K = 3: stays at the cap
+    assert ec.k == 3
+    ec(_samples(ours))                                  # certain faces: no mass left, K shrinks
+    assert ec.k == 2
+
+
+def test_normal_term_prefers_aligned_faces():
+    target = np.zeros((1, 3))
+    normals = np.array([[0.0, 0.0, 1.0]])
+    s = _samples([[0.1, 0, 0], [0.0, 0.1, 0]])
+    s.normals = torch.tensor([[1.0, 0, 0], [0, 0, 1.0]], dtype=torch.float64)
+    plain, _ = ExpectedChamfer(target, k_max=2)(s)
+    with_n, _ = ExpectedChamfer(target, normals, k_max=2, lambda_normal=0.5)(s)
+    assert plain.item() == pytest.approx(0.2)
+    # GT side: the aligned sample (distance 0.1, no normal penalty) is the nearest; ours side: the misaligned
+    # sample pays 0.5 on top of its 0.1.
+    assert with_n.item() == pytest.approx(0.1 + (0.1 + 0.6) / 2)
+
+
+def test_sampling_follows_strata_and_threshold(rng):
+    points = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.float64)
+    faces = torch.tensor([[0, 1, 2], [0, 1, 3], [1, 2, 3]])
+    reals = torch.tensor([1.0, 1.0, 1.0, 0.0], dtype=torch.float64)
+    pw = torch.ones(3, dtype=torch.float64)
+    prob = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    s = sample_faces(points, faces, pw, reals, prob, 1000, rng)
+    assert len(s) == 1000
+    # Stratum min(r): only face 0; stratum max(r): all three by area (face 2 is the largest).
+    assert (s.face[:500] == 0).all()
+    assert set(s.face[500:].tolist()) == {0, 1, 2}
+    assert s.points[:, 2].max() <= 1 and (s.points[:500, 2] == 0).all()
+    none = sample_faces(points, faces, torch.zeros(3, dtype=torch.float64), reals, prob, 100, rng)
+    assert len(none) == 0
+    loss, fig = ExpectedChamfer(np.zeros((2, 3)))(none)
+    assert fig["empty"] and loss.item() == 0.0
+
+
+def test_dmesh_chamfer_gradients(rng):
+    from dmesh import DMesh
+
+    pts = rng.random((60, 3))
+    dm = DMesh(pts, np.ones(60), rng.random(60))
+    fp = dm.face_probabilities()
+    s = sample_faces(dm.points, fp.faces, fp.prob_wdt, dm.reals, fp.prob, 2000, rng)
+    loss, _ = ExpectedChamfer(rng.random((500, 3)), k_max=16)(s)
+    loss.backward()
+    for p in dm.parameters():
+        assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0

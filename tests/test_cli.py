@@ -1,10 +1,13 @@
-"""The `dmesh` console script end to end on tiny inputs."""
+"""The `dmesh` console script end to end on tiny inputs, and its point readers."""
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -46,3 +49,27 @@ def test_cli_lists_the_library_presets_without_importing_torch():
     from dmesh.recon.config import MULTIVIEW_PRESETS, POINTCLOUD_PRESETS
 
     assert set(names) == set(POINTCLOUD_PRESETS) | set(MULTIVIEW_PRESETS) and torch_loaded == "False"
+
+
+def test_read_points_formats(tmp_path):
+    from eval.commands.reconstruct import read_points
+
+    rng = np.random.default_rng(0)
+    p, n = rng.random((30, 3)), rng.normal(size=(30, 3))
+    with open(tmp_path / "pts.ply", "w") as f:
+        f.write("ply\nformat ascii 1.0\nelement vertex 30\n" + "".join(f"property float {c}\n" for c in
+                ("x", "y", "z", "nx", "ny", "nz")) + "end_header\n")
+        f.writelines(" ".join(f"{v:.6f}" for v in row) + "\n" for row in np.c_[p, n])
+    pts, nrm = read_points(tmp_path / "pts.ply")
+    assert np.allclose(pts, p, atol=1e-5) and np.allclose(nrm, n, atol=1e-5)
+    np.savetxt(tmp_path / "pts.xyz", p)
+    pts, nrm = read_points(tmp_path / "pts.xyz")
+    assert np.allclose(pts, p) and nrm is None
+    import trimesh
+
+    trimesh.creation.icosphere(2).export(tmp_path / "ball.obj")
+    pts, nrm = read_points(tmp_path / "ball.obj", samples=500)
+    assert pts.shape == (500, 3) and nrm.shape == (500, 3)
+    with pytest.raises(ValueError, match="unsupported"):
+        (tmp_path / "x.abc").write_text("1 2 3\n")
+        read_points(tmp_path / "x.abc")

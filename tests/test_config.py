@@ -1,4 +1,4 @@
-"""dmesh.recon.config: presets, overrides and the checks every entry point shares."""
+"""dmesh.recon.config: presets, their recipes, overrides and the checks every entry point shares."""
 from __future__ import annotations
 
 import pytest
@@ -33,3 +33,46 @@ def test_a_scalar_means_the_same_in_every_tuple_field():
         with pytest.raises(ValueError, match="freeze_phase2"):
             PointCloudConfig(freeze_phase2=bad)
     assert as_tuple(2.0, int, "f") == (2,)
+
+
+@pytest.mark.parametrize("kind", ["pointcloud", "multiview"])
+def test_every_preset_has_a_recipe(kind):
+    from dmesh.recon import config
+
+    recipes = getattr(config, f"{kind.upper()}_RECIPES")
+    assert set(recipes) == set(getattr(config, f"{kind.upper()}_PRESETS"))
+    for steps, text in recipes.values():
+        assert isinstance(steps, bool) and len(text) > 20
+    # The rows the harness shows by default are the fast presets: one takes steps, one does not.
+    assert config.POINTCLOUD_RECIPES["fast"][0] is False and config.MULTIVIEW_RECIPES["fast"][0] is True
+
+
+def test_pointcloud_config_validation():
+    with pytest.raises(ValueError, match="num_init"):
+        PointCloudConfig(num_init=0)
+    with pytest.raises(ValueError, match="unknown preset"):
+        PointCloudConfig.preset("slow")
+    assert PointCloudConfig.paper().steps_phase1 == 1000 and PointCloudConfig.paper().num_init == 10_000
+
+
+def test_multiview_config_validation():
+    with pytest.raises(ValueError, match="steps_phase1"):
+        MultiViewConfig(steps_phase1=(1, 2))       # one entry per epoch: 4 for the default re-seeds
+    with pytest.raises(ValueError, match="interior"):
+        MultiViewConfig(interior="some")
+    with pytest.raises(ValueError, match="unknown preset"):
+        MultiViewConfig.preset("slow")
+    with pytest.raises(ValueError, match="depth_tolerance"):
+        MultiViewConfig(depth_tolerance=0.0)
+    with pytest.raises(ValueError, match="voronoi"):
+        MultiViewConfig(voronoi="some")
+    with pytest.raises(ValueError, match="init must be"):
+        MultiViewConfig(init="points")
+    with pytest.raises(ValueError, match="init_preset"):
+        MultiViewConfig(init="depth", init_preset="slow")
+    depth = MultiViewConfig.depth()
+    assert depth.init == "depth" and depth.epochs == 1 and depth.total_steps() == 0
+    paper = MultiViewConfig.paper()
+    assert paper.epochs == 4 and paper.refine_seeds == (1000, 3000, 10_000) and paper.grid == 20
+    assert paper.steps_phase1 == (500,) * 4 and paper.steps_phase2 == (500,) * 4
+    assert MultiViewConfig(steps_phase1=7).steps_phase1 == (7,) * 4

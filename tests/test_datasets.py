@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from conftest import SHARED_MESHES, shared_mesh
 from datasets import meshes, normalize, sampling, synthetic
+from common import SHARED_MESHES, shared_mesh
 
 ALL_SHAPES = list(synthetic.SHAPES)
 

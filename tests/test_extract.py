@@ -1,12 +1,21 @@
-"""Mesh extraction modes (`dmesh.extract`): upstream's, interior removal, and one sheet per real-tet cluster."""
+"""Mesh extraction (`dmesh.extract`): the modes (upstream's, interior removal, one sheet per real-tet cluster),
+the closed surface of a labelling (holes filled, fins dropped), and the visibility and depth filters."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 
-from dmesh import wdt
-from dmesh.extract import mesh_faces
-from dmesh.recon.init import poles, seeds_and_voronoi
+from datasets import capture as cap
+from dmesh import repair, solid, wdt
+from dmesh.extract import (SurfaceConfig, depth_consistent_faces, mesh_faces, surface, surface_of_mesh,
+                           visible_faces)
+from dmesh.recon.init import seeds_and_voronoi
+from dmesh.recon.views import check_views
+from common import ball_labels, check_closed, cloud_diagram, cycle
+
+_NO_GL = cap.gl_problem()
+needs_gl = pytest.mark.skipif(_NO_GL is not None, reason=f"no headless OpenGL (OSMesa/EGL): {_NO_GL}")
 
 
 def _edge_counts(faces):
@@ -80,49 +89,104 @@ def test_sheet_of_a_sampled_torus_is_closed_and_manifold():
     assert 3000 - len(counts) + n_faces == 0                        # ... of genus 1 over all 3000 seeds
 
 
-def test_poles_lie_off_the_surface_on_both_sides():
-    rng = np.random.default_rng(1)
-    d = rng.normal(size=(400, 3))
-    sphere = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0.99, 1.01, (400, 1))
-    corners = 3.0 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    pd = wdt.PowerDiagram.from_points(np.concatenate([sphere, corners]), None)
-    ids = poles(pd, len(sphere))
-    r = np.linalg.norm(pd.orthocentres[ids], axis=1)
-    r_all = np.linalg.norm(pd.orthocentres, axis=1)
-    # Inner poles sit near the centre (the medial axis of a sphere), outer ones far outside. Few hug the
-    # surface (measured: 0.4 % of the poles against 3.3 % of all Voronoi vertices), which is what keeps
-    # them from punching holes into the first mesh.
-    assert (r < 0.5).any() and (r > 1.3).any()
-    assert (np.abs(r - 1) < 0.1).mean() < 0.25 * (np.abs(r_all - 1) < 0.1).mean()
-    assert len(ids) <= 2 * len(sphere)
-
-
 def test_unknown_mode_is_an_error():
     pd = wdt.PowerDiagram.from_points(np.eye(4, 3) + 0.1 * np.arange(4)[:, None], None)
     with pytest.raises(ValueError, match="extraction mode"):
         mesh_faces(pd, np.ones(4, bool), "both")
 
 
-def test_carving_removes_faces_spanning_holes():
-    from scipy.spatial import cKDTree
+# -------------------------------------------------------------------------------------- closed surfaces
 
-    from datasets import normalize, sampling, synthetic
-    from dmesh.recon.init import carve_far_faces
+def test_surface_closes_a_holed_boundary_and_drops_a_fin():
+    pd = cloud_diagram(seed=2)
+    inside = ball_labels(pd)
+    walls = solid.boundary_mask(pd, inside)
+    truth = solid.oriented_boundary(pd, inside, np.flatnonzero(walls))
+    holed = walls.copy()
+    holed[np.flatnonzero(walls)[0]] = False  # a one-triangle hole
+    # A fin: a face outside the ball that shares an edge with the surface.
+    edges = {tuple(e) for e in np.sort(repair.edge_table(truth)[0], axis=1).tolist()}
+    fin = next(i for i in np.flatnonzero(~walls)
+               if any(tuple(sorted(e)) in edges for e in np.sort(repair.edge_table(pd.faces[i:i + 1])[0], 1).tolist()))
+    holed[fin] = True
+    out = surface(pd, holed, config=SurfaceConfig(directions=9))
+    assert out.info["holes_filled"] == 1 and out.info["fins_dropped"] == 1 and out.info["sheet_faces"] == 0
+    check_closed(out.faces, pd.points)
+    # The filled surface is the original one, wound the same way.
+    assert {cycle(f) for f in out.faces.tolist()} == {cycle(f) for f in truth.tolist()}
 
-    gt, _ = normalize.normalize(synthetic.generate("wavy_sheet", seed=0))   # an open sheet with 3 holes
-    data, _ = sampling.sample_points(gt, 20_000, seed=0)
-    pos, reals = seeds_and_voronoi(data, 4000, np.random.default_rng(0), vertices="poles")
 
-    def far_area(p, r):
-        pd = wdt.PowerDiagram.from_points(p, None)
-        f = pd.faces[mesh_faces(pd, r > 0.5, "sheet")]
-        d = cKDTree(data).query(p[f].mean(1))[0]
-        area = 0.5 * np.linalg.norm(np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]), axis=1)
-        return area[d > 0.05].sum(), len(f)
+def test_surface_of_a_renumbered_mesh_and_a_foreign_one():
+    pd = cloud_diagram(seed=4)
+    inside = ball_labels(pd)
+    walls = solid.boundary_mask(pd, inside)
+    mesh = trimesh.Trimesh(pd.points, pd.faces[walls], process=False)
+    mesh.remove_unreferenced_vertices()
+    out = surface_of_mesh(mesh, pd)
+    closed = check_closed(np.asarray(out.faces), np.asarray(out.vertices))
+    assert closed.volume == pytest.approx(solid.tet_volumes(pd.points, pd.tets)[inside].sum(), rel=1e-9)
+    mesh.vertices[0] += 0.01
+    with pytest.raises(ValueError, match="not points of the triangulation"):
+        surface_of_mesh(mesh, pd)
 
-    before, n_before = far_area(pos, reals)
-    pos2, reals2, added = carve_far_faces(pos, reals, data)
-    after, n_after = far_area(pos2, reals2)
-    assert before > 0.01 and added > 0                # the holes are spanned at first ...
-    assert after == 0.0 and n_after > 0.95 * n_before  # ... and only those faces go
-    assert (reals2[len(reals):] == 0).all() and np.array_equal(pos2[:len(pos)], pos)
+
+# ---------------------------------------------------------------------------------------------- filters
+
+@needs_gl
+def test_depth_consistency_keeps_the_surface_and_drops_what_lies_inside_or_outside(sphere, sphere_views):
+    vw = check_views(sphere_views)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+
+    def kept(verts, tol=0.02):
+        return depth_consistent_faces(verts, f, vw.world_to_camera, vw.fov_y_degrees, vw.depth, vw.mask, tol).mean()
+
+    assert kept(v) > 0.99                       # the captured surface itself
+    assert kept(0.9 * v) == 0.0                 # an inner shell: behind the surface in every view
+    assert kept(1.5 * v) == 0.0                 # an outer shell: in front of it, or on background
+    assert kept(0.9 * v, tol=0.2) > 0.99        # within a generous tolerance it counts as the surface
+
+
+def _cube_with_centre():
+    """A cube's 8 corners and its centre: 12 tets around the centre, hull = the cube's 12 triangles."""
+    from dmesh.wdt import PowerDiagram
+
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    pts = np.r_[corners, [[0.01, 0.02, 0.03]]]    # centre off-symmetric: a unique triangulation
+    return pts, PowerDiagram.from_points(pts, None)
+
+
+def _interior_naive(pd, real):
+    out = np.zeros(len(pd.faces), bool)
+    for f, (t0, t1) in enumerate(pd.face_tets):
+        if t1 < 0:
+            continue
+        apexes = [set(pd.tets[t].tolist()) - set(pd.faces[f].tolist()) for t in (t0, t1)]
+        assert all(len(a) == 1 for a in apexes)
+        out[f] = all(real[a.pop()] for a in apexes)
+    return out
+
+
+def test_apex_rule_drops_faces_with_two_real_apexes():
+    """The "apex" interior rule is `mesh_faces(..., "no_interior")`: real faces minus those whose two tets
+    both have a real apex."""
+    pts, pd = _cube_with_centre()
+    assert len(pd.tets) == 12 and pd.is_hull.sum() == 12
+    every = np.ones(len(pts), bool)
+    assert (mesh_faces(pd, every, "no_interior") == pd.is_hull).all()   # all real: only the hull is left
+    for off in (0, 5, 8):                          # one imaginary point (a corner, or the centre)
+        real = every.copy()
+        real[off] = False
+        want = real[pd.faces].all(1) & ~_interior_naive(pd, real)
+        assert (mesh_faces(pd, real, "no_interior") == want).all()
+
+
+def test_visible_faces_are_the_hull_of_an_opaque_solid():
+    from dmesh.render import Camera
+
+    pts, pd = _cube_with_centre()
+    cams = Camera.from_views(cap.camera_rig(8, distance=3.0)[0], resolution=32)
+    seen = visible_faces(pts, pd, np.ones(len(pd.faces), bool), cams)
+    assert (seen == pd.is_hull).all()
+    few = np.zeros(len(pd.faces), bool)
+    few[np.flatnonzero(~pd.is_hull)[:3]] = True    # inner faces alone are visible through the empty hull
+    assert (visible_faces(pts, pd, few, cams) <= few).all() and visible_faces(pts, pd, few, cams).any()

@@ -1,5 +1,6 @@
-"""Multi-view images to mesh: input checks, image resampling, interior-face removal, the procedure (tiny
-preset on a small capture), determinism, resuming, the CLI, the harness method and the report alias.
+"""Multi-view images to mesh (`dmesh.recon.multiview`): input checks, the procedure (tiny preset on a small
+capture; `sphere` and `sphere_views` come from conftest.py), determinism, resuming, the CLI and the harness
+method.
 
 The accuracy threshold is ~1.5x the value measured with the `tiny` preset (number in the comment), so a
 regression fails here; timings are never asserted. The captures need headless OpenGL (OSMesa or EGL).
@@ -16,232 +17,38 @@ import pytest
 import torch
 
 from datasets import capture as cap
-from datasets import synthetic
-from datasets.normalize import normalize
-from dmesh.camera import eyes as camera_eyes
-from dmesh.extract import depth_consistent_faces, mesh_faces, visible_faces
 from dmesh.recon.multiview import MultiViewConfig, reconstruct
-from dmesh.recon.views import check_views, depth_channel, downsample, soft_band_targets
+from common import fake_views
 
 
 _NO_GL = cap.gl_problem()
 needs_gl = pytest.mark.skipif(_NO_GL is not None, reason=f"no headless OpenGL (OSMesa/EGL): {_NO_GL}")
 
-#: The test capture: few views at low resolution (the tiny preset optimises at 48 pixels).
-VIEWS, RESOLUTION = 16, 96
-
-
-@pytest.fixture(scope="module")
-def sphere():
-    gt, _ = normalize(synthetic.generate("sphere", seed=0), radius=1.0)
-    return gt
-
-
-@pytest.fixture(scope="module")
-def sphere_views(sphere):
-    if _NO_GL is not None:
-        pytest.skip(f"no headless OpenGL (OSMesa/EGL): {_NO_GL}")
-    return cap.capture(sphere, views=VIEWS, resolution=RESOLUTION)
-
-
-def _fake_views(v=2, res=8, **changes):
-    """A MultiView with a lit square in every view (no OpenGL), for the input checks."""
-    depth = np.zeros((v, res, res), np.float32)
-    depth[:, 2:6, 2:6] = 1.5
-    fields = dict(diffuse=(depth > 0).astype(np.float32), depth=depth, mask=depth > 0,
-                  world_to_camera=cap.camera_rig(v)[0], projection=cap.perspective(65.0, 1.0, 0.1, 100.0),
-                  fov_y_degrees=65.0, resolution=res)
-    fields.update(changes)
-    return cap.MultiView(**fields)
-
 
 # ------------------------------------------------------------------------------------------------ inputs
 
 def _nan_depth():
-    views = _fake_views()
+    views = fake_views()
     views.depth[0, 3, 3] = np.nan
     return views
 
 
 @pytest.mark.parametrize("make,match", [
     (lambda: None, "no views"),
-    (lambda: _fake_views(diffuse=np.zeros((0, 8, 8), np.float32), depth=np.zeros((0, 8, 8), np.float32),
+    (lambda: fake_views(diffuse=np.zeros((0, 8, 8), np.float32), depth=np.zeros((0, 8, 8), np.float32),
                          mask=np.zeros((0, 8, 8), bool), world_to_camera=np.zeros((0, 4, 4))), "V >= 1"),
-    (lambda: _fake_views(depth=np.zeros((2, 8, 7), np.float32)), "shape"),
-    (lambda: _fake_views(mask=np.zeros((3, 8, 8), bool)), "mask"),
-    (lambda: _fake_views(world_to_camera=np.zeros((3, 4, 4))), "world_to_camera"),
+    (lambda: fake_views(depth=np.zeros((2, 8, 7), np.float32)), "shape"),
+    (lambda: fake_views(mask=np.zeros((3, 8, 8), bool)), "mask"),
+    (lambda: fake_views(world_to_camera=np.zeros((3, 4, 4))), "world_to_camera"),
     (_nan_depth, "NaN"),
-    (lambda: _fake_views(depth=np.zeros((2, 8, 8), np.float32), mask=np.zeros((2, 8, 8), bool)), "empty"),
+    (lambda: fake_views(depth=np.zeros((2, 8, 8), np.float32), mask=np.zeros((2, 8, 8), bool)), "empty"),
     # An object much larger than the camera distance: normalised to radius 1, the cameras fall inside it.
-    (lambda: _fake_views(depth=np.full((2, 8, 8), 10, np.float32), mask=np.ones((2, 8, 8), bool)), "too close"),
+    (lambda: fake_views(depth=np.full((2, 8, 8), 10, np.float32), mask=np.ones((2, 8, 8), bool)), "too close"),
 ])
 def test_bad_views(make, match):
     with pytest.raises(ValueError, match=match) as info:
         reconstruct(make(), MultiViewConfig.tiny())
     assert "\n" not in str(info.value)
-
-
-def test_check_views_masks_the_background():
-    views = _fake_views()
-    views.diffuse[:, 0, 0] = 0.7                   # lit background pixel: not part of the object
-    vw = check_views(views)
-    assert vw.diffuse[:, 0, 0].max() == 0 and vw.depth.dtype == np.float32
-
-
-def test_config_validation():
-    with pytest.raises(ValueError, match="steps_phase1"):
-        MultiViewConfig(steps_phase1=(1, 2))       # one entry per epoch: 4 for the default re-seeds
-    with pytest.raises(ValueError, match="interior"):
-        MultiViewConfig(interior="some")
-    with pytest.raises(ValueError, match="unknown preset"):
-        MultiViewConfig.preset("slow")
-    with pytest.raises(ValueError, match="depth_tolerance"):
-        MultiViewConfig(depth_tolerance=0.0)
-    with pytest.raises(ValueError, match="voronoi"):
-        MultiViewConfig(voronoi="some")
-    with pytest.raises(ValueError, match="init must be"):
-        MultiViewConfig(init="points")
-    with pytest.raises(ValueError, match="init_preset"):
-        MultiViewConfig(init="depth", init_preset="slow")
-    depth = MultiViewConfig.depth()
-    assert depth.init == "depth" and depth.epochs == 1 and depth.total_steps() == 0
-    paper = MultiViewConfig.paper()
-    assert paper.epochs == 4 and paper.refine_seeds == (1000, 3000, 10_000) and paper.grid == 20
-    assert paper.steps_phase1 == (500,) * 4 and paper.steps_phase2 == (500,) * 4
-    assert MultiViewConfig(steps_phase1=7).steps_phase1 == (7,) * 4
-
-
-# ------------------------------------------------------------------------------------------------ helpers
-
-def test_downsample_is_an_area_average(rng):
-    img = rng.random((3, 12, 12)).astype(np.float32)
-    half = downsample(img, 6)
-    want = img.reshape(3, 6, 2, 6, 2).mean(axis=(2, 4))
-    assert np.allclose(half, want, atol=1e-6)
-    odd = downsample(img, 5)                       # non-integer ratio: each pixel averages its footprint
-    assert odd.shape == (3, 5, 5) and np.allclose(odd.mean(axis=(1, 2)), img.mean(axis=(1, 2)), atol=1e-6)
-    assert np.array_equal(downsample(img, 12), img)
-
-
-@needs_gl
-def test_band_targets_make_the_soft_fit_unbiased(sphere, sphere_views):
-    """The GT sphere, drawn opaque by the soft renderer at 48 pixels, fits the plain targets best when shrunk
-    (its band puts the silhouette about half a pixel outside) but the band targets best at its true size."""
-    from dmesh.render import Camera, soft_render_views
-
-    res, width = 48, 1.0
-    vw = check_views(sphere_views)
-    far = np.linalg.norm(camera_eyes(vw.world_to_camera), axis=1) + 2.0
-    channel = far[:, None, None] * vw.mask - vw.depth.astype(np.float64)
-    plain = [torch.from_numpy(downsample(x, res)) for x in (vw.diffuse, channel)]
-    band = [torch.from_numpy(x) for x in soft_band_targets([vw.diffuse, channel], vw.mask, res, width)]
-    assert torch.equal(band[0][plain[0] > 0.999], plain[0][plain[0] > 0.999])  # object pixels unchanged
-    cams = Camera.from_views(vw.world_to_camera, vw.fov_y_degrees, res)
-    faces = torch.from_numpy(np.asarray(sphere.faces, np.int64))
-    pixel = 2.0 * 2.0 * np.tan(np.radians(vw.fov_y_degrees) / 2) / res  # one pixel at the sphere's distance
-    offsets = np.array([-1.0, -0.5, 0.0, 0.5]) * pixel
-    losses = {"plain": [], "band": []}
-    for off in offsets:
-        verts = torch.from_numpy(np.asarray(sphere.vertices) * (1.0 + off)).float()
-        out = soft_render_views(verts, faces, torch.ones(len(faces)), cams, edge_width=width, min_opacity=0.0)
-        z = depth_channel(out["depth"], out["alpha"], torch.from_numpy(far).float()) * 2.0
-        for name, (td, tz) in (("plain", plain), ("band", band)):
-            losses[name].append(float((out["diffuse"] - td).abs().mean() + (z - tz).abs().mean()))
-    assert offsets[int(np.argmin(losses["plain"]))] < 0, losses
-    assert offsets[int(np.argmin(losses["band"]))] == 0.0, losses
-
-
-def test_look_at_point_of_the_capture_rig():
-    from dmesh.camera import look_at_point
-
-    w2c, _ = cap.camera_rig(64)
-    shifted = w2c.copy()
-    shifted[:, :3, 3] -= np.einsum("vij,j->vi", w2c[:, :3, :3], [0.3, -0.2, 0.1])  # rig moved to (0.3, -0.2, 0.1)
-    assert np.allclose(look_at_point(w2c), 0.0, atol=1e-9)
-    assert np.allclose(look_at_point(shifted), [0.3, -0.2, 0.1], atol=1e-9)
-    assert look_at_point(np.repeat(w2c[:1], 3, axis=0)) is None  # one axis: no single nearest point
-
-
-@needs_gl
-def test_lopsided_object_falls_back_to_the_look_at_centre():
-    """The shared face mask is lopsided: its lifted box centre moves towards a camera of the rig, which then
-    sits inside the object's box; the cameras' look-at point (the vertex mean) keeps every camera out."""
-    from conftest import shared_mesh
-
-    from dmesh.recon.views import BOX_MARGIN, MIN_BOX, lifted_points, normalisation
-
-    from datasets.meshes import load_mesh
-
-    gt, _ = normalize(load_mesh(shared_mesh("open/face.off")), radius=1.0)
-    vw = check_views(cap.capture(gt, views=64, resolution=64))
-    pts = lifted_points(vw)
-    box_centre = 0.5 * (pts.min(0) + pts.max(0))
-    radius = np.linalg.norm(pts - box_centre, axis=1).max()
-    eyes = camera_eyes(vw.world_to_camera)
-    assert BOX_MARGIN * np.abs((eyes - box_centre) / radius).max(1).min() < MIN_BOX  # the box centre fails
-    center, scale, _, eyes_n = normalisation(vw)
-    cam_box = np.abs(eyes_n).max(1).min()
-    assert np.allclose(center, 0.0, atol=1e-6) and BOX_MARGIN * cam_box >= MIN_BOX
-
-
-@needs_gl
-def test_depth_consistency_keeps_the_surface_and_drops_what_lies_inside_or_outside(sphere, sphere_views):
-    vw = check_views(sphere_views)
-    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
-
-    def kept(verts, tol=0.02):
-        return depth_consistent_faces(verts, f, vw.world_to_camera, vw.fov_y_degrees, vw.depth, vw.mask, tol).mean()
-
-    assert kept(v) > 0.99                       # the captured surface itself
-    assert kept(0.9 * v) == 0.0                 # an inner shell: behind the surface in every view
-    assert kept(1.5 * v) == 0.0                 # an outer shell: in front of it, or on background
-    assert kept(0.9 * v, tol=0.2) > 0.99        # within a generous tolerance it counts as the surface
-
-
-def _cube_with_centre():
-    """A cube's 8 corners and its centre: 12 tets around the centre, hull = the cube's 12 triangles."""
-    from dmesh.wdt import PowerDiagram
-
-    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-    pts = np.r_[corners, [[0.01, 0.02, 0.03]]]    # centre off-symmetric: a unique triangulation
-    return pts, PowerDiagram.from_points(pts, None)
-
-
-def _interior_naive(pd, real):
-    out = np.zeros(len(pd.faces), bool)
-    for f, (t0, t1) in enumerate(pd.face_tets):
-        if t1 < 0:
-            continue
-        apexes = [set(pd.tets[t].tolist()) - set(pd.faces[f].tolist()) for t in (t0, t1)]
-        assert all(len(a) == 1 for a in apexes)
-        out[f] = all(real[a.pop()] for a in apexes)
-    return out
-
-
-def test_apex_rule_drops_faces_with_two_real_apexes():
-    """The "apex" interior rule is `mesh_faces(..., "no_interior")`: real faces minus those whose two tets
-    both have a real apex."""
-    pts, pd = _cube_with_centre()
-    assert len(pd.tets) == 12 and pd.is_hull.sum() == 12
-    every = np.ones(len(pts), bool)
-    assert (mesh_faces(pd, every, "no_interior") == pd.is_hull).all()   # all real: only the hull is left
-    for off in (0, 5, 8):                          # one imaginary point (a corner, or the centre)
-        real = every.copy()
-        real[off] = False
-        want = real[pd.faces].all(1) & ~_interior_naive(pd, real)
-        assert (mesh_faces(pd, real, "no_interior") == want).all()
-
-
-def test_visible_faces_are_the_hull_of_an_opaque_solid():
-    from dmesh.render import Camera
-
-    pts, pd = _cube_with_centre()
-    cams = Camera.from_views(cap.camera_rig(8, distance=3.0)[0], resolution=32)
-    seen = visible_faces(pts, pd, np.ones(len(pd.faces), bool), cams)
-    assert (seen == pd.is_hull).all()
-    few = np.zeros(len(pd.faces), bool)
-    few[np.flatnonzero(~pd.is_hull)[:3]] = True    # inner faces alone are visible through the empty hull
-    assert (visible_faces(pts, pd, few, cams) <= few).all() and visible_faces(pts, pd, few, cams).any()
 
 
 # ------------------------------------------------------------------------------------------------ procedure
@@ -428,29 +235,3 @@ def test_cli_bad_capture_one_line(tmp_path, capsys, setup, match):
     assert code == 2, err
     assert err.strip().count("\n") == 0 and match in err, err
     assert not out.exists() and not list(tmp_path.glob("*.json"))
-
-
-# ------------------------------------------------------------------------------------------------ reports
-
-def test_multiview_table_shows_dmesh_mv_as_dmesh(tmp_path):
-    from eval.reports import tables
-    from eval.store import Store
-
-    def row(key, method, kind, cd):
-        return {"key": key, "method": method, "config_label": "", "shape": "torus", "category": "closed",
-                "input_kind": kind, "config_json": {}, "inputs_json": {"views": 64, "metric_samples": 1000},
-                "seed": 0, "status": "done", "error": None, "gt_hash": "0" * 64, "code_version": "test",
-                "metrics_json": {"cd_p2s": cd, "cd_l1": cd}, "timings_json": {"total": 1.0}, "info_json": {},
-                "peak_memory_mb": 1.0}
-
-    with Store(tmp_path / "s.sqlite") as s:
-        s.upsert(row("a", "dmesh_mv", "multiview", 2e-3))
-        s.upsert(row("b", "tsdf", "multiview", 1e-3))
-        s.upsert(row("c", "dmesh", "pointcloud", 3e-3))
-        df = s.dataframe()
-    mv = {r["method"]: r for r in tables.table2(df, "multiview")}
-    assert set(mv) == {"dmesh", "tsdf"} and mv["dmesh"]["cd_p2s"] == 2e-3
-    assert mv["dmesh"]["paper_cd_l1"] is not None   # the paper's "Ours" row sits beside it
-    assert [r["method"] for r in tables.table2(df, "pointcloud")] == ["dmesh"]
-    md, _ = tables.write_table2(df, tmp_path / "rep", "multiview")
-    assert "dmesh_mv" not in md.read_text() and "| dmesh |" in md.read_text()

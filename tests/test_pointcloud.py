@@ -1,4 +1,5 @@
-"""Point cloud to mesh: expected Chamfer, regularisers, the bounded step, the procedure, the CLI.
+"""Point cloud to mesh (`dmesh.recon.pointcloud`): the step's gradients, the procedure (accuracy, output
+surfaces, resuming, determinism), input checks, the harness method, the CLI.
 
 Accuracy thresholds are ~1.5x the values measured with the `tiny` preset (numbers in the comments), so a
 regression fails here; timings are never asserted.
@@ -13,164 +14,15 @@ import sys
 import numpy as np
 import pytest
 import torch
+import trimesh
 
-from dmesh.losses.chamfer import (ExpectedChamfer, SurfaceSamples, chamfer_l1, expected_min_distance,
-                                  first_occurrence, sample_faces)
-from dmesh.losses.regularizers import aspect_ratios, quality_regularizer, real_regularizer, weight_regularizer
-from dmesh.recon.optim import BoundedAdam, StepConfig
-from dmesh.recon.pointcloud import PointCloudConfig, check_points, orient_faces, reconstruct
-
-
-def _samples(points, prob=None, face=None):
-    pts = torch.as_tensor(points, dtype=torch.float64)
-    n = len(pts)
-    prob = torch.ones(n, dtype=torch.float64) if prob is None else torch.as_tensor(prob, dtype=torch.float64)
-    face = torch.arange(n) if face is None else torch.as_tensor(face)
-    return SurfaceSamples(pts, face, prob)
-
-
-# ------------------------------------------------------------------------------------- expected Chamfer
-
-def test_expected_min_distance_by_hand():
-    d = torch.tensor([[1.0, 2.0, 3.0]], dtype=torch.float64)
-    p = torch.tensor([[0.5, 0.5, 1.0]], dtype=torch.float64)
-    e, res = expected_min_distance(d, p, torch.tensor([[0, 1, 2]]))
-    assert e.item() == pytest.approx(0.5 * 1 + 0.25 * 2 + 0.25 * 3)
-    assert res.item() == pytest.approx(0.0)
-    # The second sample repeats the first one's face: it cannot be the nearest (at most one per face).
-    e, res = expected_min_distance(d, p, torch.tensor([[7, 7, 2]]))
-    assert e.item() == pytest.approx(0.5 * 1 + 0.5 * 3)
-    e, res = expected_min_distance(d[:, :2], p[:, :2], torch.tensor([[0, 1]]))
-    assert res.item() == pytest.approx(0.25)
-
-
-def test_first_occurrence():
-    ids = torch.tensor([[1, 2, 3, 2, 3, 4], [5, 5, 5, 5, 5, 5]])
-    want = torch.tensor([[1, 1, 1, 0, 0, 1], [1, 0, 0, 0, 0, 0]], dtype=torch.bool)
-    assert torch.equal(first_occurrence(ids), want)
-
-
-def test_all_probabilities_one_is_plain_chamfer(rng):
-    target = rng.random((300, 3))
-    ours = rng.random((200, 3))
-    ec = ExpectedChamfer(target, k_max=5)
-    loss, fig = ec(_samples(ours))
-    assert loss.item() == pytest.approx(chamfer_l1(target, ours), rel=1e-12)
-    assert fig["residual"] == 0.0
-
-
-def test_gradient_reaches_probabilities_and_positions(rng):
-    target = rng.random((100, 3))
-    pts = torch.tensor(rng.random((80, 3)), requires_grad=True)
-    prob = torch.full((80,), 0.6, dtype=torch.float64, requires_grad=True)
-    loss, _ = ExpectedChamfer(target, k_max=8)(SurfaceSamples(pts, torch.arange(80), prob))
-    loss.backward()
-    assert prob.grad.abs().sum() > 0 and pts.grad.abs().sum() > 0
-    assert torch.isfinite(prob.grad).all() and torch.isfinite(pts.grad).all()
-
-
-def test_adaptive_k():
-    target = np.zeros((1, 3))
-    ours = np.array([[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0]])
-    ec = ExpectedChamfer(target, k_max=3)
-    ec(_samples(ours, prob=[0.5, 0.5, 0.5]))            # mass 1/8 left beyond K = 3: stays at the cap
-    assert ec.k == 3
-    ec(_samples(ours))                                  # certain faces: no mass left, K shrinks
-    assert ec.k == 2
-
-
-def test_normal_term_prefers_aligned_faces():
-    target = np.zeros((1, 3))
-    normals = np.array([[0.0, 0.0, 1.0]])
-    s = _samples([[0.1, 0, 0], [0.0, 0.1, 0]])
-    s.normals = torch.tensor([[1.0, 0, 0], [0, 0, 1.0]], dtype=torch.float64)
-    plain, _ = ExpectedChamfer(target, k_max=2)(s)
-    with_n, _ = ExpectedChamfer(target, normals, k_max=2, lambda_normal=0.5)(s)
-    assert plain.item() == pytest.approx(0.2)
-    # GT side: the aligned sample (distance 0.1, no normal penalty) is the nearest; ours side: the misaligned
-    # sample pays 0.5 on top of its 0.1.
-    assert with_n.item() == pytest.approx(0.1 + (0.1 + 0.6) / 2)
-
-
-def test_sampling_follows_strata_and_threshold(rng):
-    points = torch.tensor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=torch.float64)
-    faces = torch.tensor([[0, 1, 2], [0, 1, 3], [1, 2, 3]])
-    reals = torch.tensor([1.0, 1.0, 1.0, 0.0], dtype=torch.float64)
-    pw = torch.ones(3, dtype=torch.float64)
-    prob = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
-    s = sample_faces(points, faces, pw, reals, prob, 1000, rng)
-    assert len(s) == 1000
-    # Stratum min(r): only face 0; stratum max(r): all three by area (face 2 is the largest).
-    assert (s.face[:500] == 0).all()
-    assert set(s.face[500:].tolist()) == {0, 1, 2}
-    assert s.points[:, 2].max() <= 1 and (s.points[:500, 2] == 0).all()
-    none = sample_faces(points, faces, torch.zeros(3, dtype=torch.float64), reals, prob, 100, rng)
-    assert len(none) == 0
-    loss, fig = ExpectedChamfer(np.zeros((2, 3)))(none)
-    assert fig["empty"] and loss.item() == 0.0
-
-
-def test_dmesh_chamfer_gradients(rng):
-    from dmesh import DMesh
-
-    pts = rng.random((60, 3))
-    dm = DMesh(pts, np.ones(60), rng.random(60))
-    fp = dm.face_probabilities()
-    s = sample_faces(dm.points, fp.faces, fp.prob_wdt, dm.reals, fp.prob, 2000, rng)
-    loss, _ = ExpectedChamfer(rng.random((500, 3)), k_max=16)(s)
-    loss.backward()
-    for p in dm.parameters():
-        assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0
-
-
-# ------------------------------------------------------------------------------------------ regularisers
-
-def test_regularizers(rng):
-    from dmesh import wdt
-
-    s3 = np.sqrt(3.0)
-    points = torch.tensor([[0, 0, 0], [1, 0, 0], [0.5, s3 / 2, 0], [0, 0, 1], [10, 0, 0], [0, 0.01, 0]],
-                          dtype=torch.float64)
-    ratio, longest = aspect_ratios(points, torch.tensor([[0, 1, 2], [0, 4, 5]]))
-    assert ratio[0].item() == pytest.approx(1.0) and longest[0].item() == pytest.approx(1.0)
-    assert ratio[1].item() > 20
-    q = quality_regularizer(points, torch.tensor([[0, 1, 2], [0, 4, 5]]), torch.tensor([1.0, 1.0]))
-    assert q.item() == pytest.approx((1.0 + 20 * 10) / 2)
-    reals = torch.ones(6, dtype=torch.float64, requires_grad=True)
-    faces = torch.tensor([[0, 1, 2], [1, 2, 3]])
-    assert real_regularizer(reals, faces, torch.ones(2)).item() == 0.0
-    r = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64, requires_grad=True)
-    val = real_regularizer(r, torch.tensor([[0, 1, 2]]), torch.ones(1))
-    assert val.item() == pytest.approx((2 / 3 + 2 * 1 / 3) / 3 + 2 / 3)
-    val.backward()
-    assert r.grad[1] < 0  # growth pushes the imaginary neighbours of a real point up
-    p = torch.tensor(rng.random((40, 3)), requires_grad=True)
-    w = torch.zeros(40, dtype=torch.float64, requires_grad=True)
-    pd = wdt.PowerDiagram.from_points(p.detach(), w.detach())
-    reg = weight_regularizer(p, w, pd)
-    reg.backward()
-    assert reg.item() > 0 and w.grad.abs().sum() > 0
-
-
-# ------------------------------------------------------------------------------------------ bounded step
-
-def test_bounded_adam_bounds_and_freezing(rng):
-    n = 30
-    pts = torch.nn.Parameter(torch.tensor(rng.random((n, 3))))
-    w = torch.nn.Parameter(torch.full((n,), 0.5, dtype=torch.float64))
-    r = torch.nn.Parameter(torch.full((n,), 0.5, dtype=torch.float64))
-    opt = BoundedAdam(pts, w, r, StepConfig(lr=0.1, update_bound=1e-3, max_real=1e-2))
-    opt.freeze(torch.arange(n) < 5)
-    before = pts.detach().clone()
-    for _ in range(3):
-        opt.zero_grad()
-        (pts.sum() * 1e3 + w.sum() + (r * r).sum() * float("nan")).backward()  # NaN grads of r are zeroed
-        opt.step()
-    assert (pts.detach() - before).abs().max() <= 3e-3 + 1e-12
-    assert (r[:5] == 1).all() and (r[5:] == 0.5).all()
-    assert ((w >= 0) & (w <= 1)).all()
-    only_reals = BoundedAdam(pts, w, r, StepConfig(), train=("reals",))
-    assert [g["name"] for g in only_reals.optimizer.param_groups] == ["reals"]
+from datasets.normalize import normalize
+from datasets.sampling import sample_points
+from datasets.synthetic import generate
+from dmesh import repair
+from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
+from dmesh.recon.pointcloud import PointCloudConfig, check_points, reconstruct
+from common import check_closed
 
 
 # ------------------------------------------------------------------------------------------ procedure
@@ -263,7 +115,7 @@ def test_step_gradients_native_equal_reference_in_float64():
     implementations may pick different subgradients or round differently."""
     from dmesh.losses.regularizers import add_phase1_regularizers
     from dmesh.model import DMesh
-    from helpers import assert_close
+    from common import assert_close
 
     _, pts, _ = _shape_cloud("torus", 4000)
     pts = pts / np.linalg.norm(pts, axis=1).max()
@@ -332,17 +184,6 @@ def test_harness_method():
         method.reconstruct(Inputs(pts, nrm), {"preset": "tiny", "bogus": 1})
 
 
-def test_orientation_is_consistent():
-    import trimesh
-
-    box = trimesh.creation.box()
-    faces = box.faces.copy()
-    faces[::2] = faces[::2, ::-1]                       # scramble the winding of every other face
-    mesh = trimesh.Trimesh(box.vertices, faces, process=False)
-    orient_faces(mesh)
-    assert mesh.is_winding_consistent and mesh.volume > 0
-
-
 @pytest.mark.parametrize("points,match", [
     (np.zeros((0, 3)), "empty"),
     (np.eye(3), "at least"),
@@ -357,12 +198,94 @@ def test_bad_points(points, match):
         reconstruct(points, config=PointCloudConfig.tiny())
 
 
-def test_config_validation():
-    with pytest.raises(ValueError, match="num_init"):
-        PointCloudConfig(num_init=0)
-    with pytest.raises(ValueError, match="unknown preset"):
-        PointCloudConfig.preset("slow")
-    assert PointCloudConfig.paper().steps_phase1 == 1000 and PointCloudConfig.paper().num_init == 10_000
+# ------------------------------------------------------------------- step gradients, trained parameters
+
+def test_step_gradients_agree_with_finite_differences_at_a_fixed_triangulation():
+    # The whole phase-1 step on a small torus input, with the triangulation, candidates, Chamfer K and the
+    # drawn (face, barycentric) pairs fixed: the expected Chamfer's position and weight gradients are the
+    # derivative of the loss. (Steps of 1e-4 along a unit direction: the parameters are float32.)
+    from dmesh.recon.pointcloud import PointCloudConfig
+    from eval.bench.gradients import StepTerms, _initial_dmesh, _input
+
+    pts, _ = _input(5000)
+    cfg = PointCloudConfig.paper(num_init=250, num_target=2000, num_samples=2000)
+    dm = _initial_dmesh(pts, cfg)
+    terms = StepTerms(dm, pts, cfg)
+    for group in ("points", "weights"):
+        param = getattr(dm, group)
+        for p in (dm.points, dm.weights, dm.reals):
+            p.grad = None
+        terms()["chamfer"].backward()
+        u = torch.randn(param.shape, generator=torch.Generator().manual_seed(1), dtype=param.dtype)
+        u /= u.norm()
+        autograd = float((param.grad * u).sum())
+        fd = []
+        for h in (1e-3, 1e-4):
+            vals = []
+            origin = param.detach().clone()
+            for sign in (1.0, -1.0):
+                with torch.no_grad():
+                    param.copy_(origin + sign * h * u)
+                    vals.append(float(terms()["chamfer"]))
+                    param.copy_(origin)
+            fd.append((vals[0] - vals[1]) / (2 * h))
+        assert terms.missing == 0
+        assert abs(autograd) > 1e-4
+        np.testing.assert_allclose(fd, autograd, rtol=0.02)
+
+
+def test_train_phase1_moves_only_what_it_names():
+    from datasets.normalize import normalize
+    from datasets.sampling import sample_points
+    from datasets.synthetic import generate
+    from dmesh.recon.pointcloud import PointCloudConfig, reconstruct
+
+    with pytest.raises(ValueError, match="train_phase1"):
+        PointCloudConfig(train_phase1=("points", "colour"))
+    assert PointCloudConfig(train_phase1="points").train_phase1 == ("points",)
+    gt, _ = normalize(generate("sphere"))
+    pts, _ = sample_points(gt, 5000, 0)
+    base = dict(num_init=300, num_target=2000, num_samples=2000, steps_phase2=0, lr=1e-3, update_bound=1e-3)
+    start = reconstruct(pts, None, PointCloudConfig.tiny(**base, steps_phase1=0)).dmesh
+    moved = reconstruct(pts, None, PointCloudConfig.tiny(**base, steps_phase1=3, train_phase1=("points",))).dmesh
+    assert not torch.equal(start.points, moved.points)
+    assert torch.equal(start.weights, moved.weights) and torch.equal(start.reals, moved.reals)
+
+
+# -------------------------------------------------------------------------------------- output surfaces
+
+def _oriented_fraction(mesh: trimesh.Trimesh, gt: trimesh.Trimesh) -> float:
+    """Area fraction of `mesh` whose normal agrees with the normal of the GT face closest to its centroid."""
+    _, _, tri = trimesh.proximity.closest_point(gt, mesh.triangles_center)
+    agree = np.einsum("ij,ij->i", mesh.face_normals, gt.face_normals[tri]) > 0
+    return float((mesh.area_faces * agree).sum() / mesh.area_faces.sum())
+
+
+def _tiny_cloud(name: str, normals: bool):
+    gt = normalize(generate(name))[0]
+    pts, nrm = sample_points(gt, 3000, 0)
+    # No optimisation step: the output is the extraction of the initial DMesh (what these tests check).
+    res = reconstruct(pts, nrm if normals else None, PointCloudConfig.tiny(steps_phase1=0, steps_phase2=0))
+    return gt, res
+
+
+@pytest.mark.parametrize("name", ["sphere", "torus"])
+def test_closed_clouds_give_watertight_outward_meshes(name):
+    gt, res = _tiny_cloud(name, normals=False)
+    check_closed(np.asarray(res.mesh.faces), np.asarray(res.mesh.vertices))
+    assert res.mesh.volume > 0 and _oriented_fraction(res.mesh, gt) >= 0.99
+    assert res.info["surface"]["vote"] == "parity"
+
+
+@pytest.mark.parametrize("name", ["disc", "bowl"])
+def test_open_clouds_face_their_normals(name):
+    gt, res = _tiny_cloud(name, normals=True)
+    faces = np.asarray(res.mesh.faces)
+    assert len(repair.nonmanifold_edges(faces)) == 0 and res.mesh.is_winding_consistent
+    assert _oriented_fraction(res.mesh, gt) >= 0.99
+    # Without normals the side of an open sheet is unknown, but the winding is still consistent.
+    _, bare = _tiny_cloud(name, normals=False)
+    assert bare.mesh.is_winding_consistent and len(repair.nonmanifold_edges(np.asarray(bare.mesh.faces))) == 0
 
 
 # ------------------------------------------------------------------------------------------------ CLI
@@ -419,37 +342,3 @@ def test_fast_preset_open_shape_beats_poisson():
     res = get_method("dmesh").reconstruct(Inputs(pts, nrm, seed=0))
     m = compute_metrics(res.mesh, gt, n=100_000, seed=0)
     assert m["cd_p2s"] < 1.3e-3 and m["self_intersecting_faces"] == 0
-
-
-def test_read_points_formats(tmp_path):
-    from eval.commands.reconstruct import read_points
-
-    rng = np.random.default_rng(0)
-    p, n = rng.random((30, 3)), rng.normal(size=(30, 3))
-    with open(tmp_path / "pts.ply", "w") as f:
-        f.write("ply\nformat ascii 1.0\nelement vertex 30\n" + "".join(f"property float {c}\n" for c in
-                ("x", "y", "z", "nx", "ny", "nz")) + "end_header\n")
-        f.writelines(" ".join(f"{v:.6f}" for v in row) + "\n" for row in np.c_[p, n])
-    pts, nrm = read_points(tmp_path / "pts.ply")
-    assert np.allclose(pts, p, atol=1e-5) and np.allclose(nrm, n, atol=1e-5)
-    np.savetxt(tmp_path / "pts.xyz", p)
-    pts, nrm = read_points(tmp_path / "pts.xyz")
-    assert np.allclose(pts, p) and nrm is None
-    import trimesh
-
-    trimesh.creation.icosphere(2).export(tmp_path / "ball.obj")
-    pts, nrm = read_points(tmp_path / "ball.obj", samples=500)
-    assert pts.shape == (500, 3) and nrm.shape == (500, 3)
-    with pytest.raises(ValueError, match="unsupported"):
-        (tmp_path / "x.abc").write_text("1 2 3\n")
-        read_points(tmp_path / "x.abc")
-
-
-def test_sweep_configs_may_name_a_preset():
-    from baselines.registry import get_method
-    from eval.sweep import build_config
-
-    cfg, as_dict = build_config(get_method("dmesh"), {"preset": "paper", "steps_phase1": 3})
-    assert cfg == PointCloudConfig.paper(steps_phase1=3) and as_dict["num_init"] == 10_000
-    with pytest.raises(ValueError, match="unknown config keys"):
-        build_config(get_method("dmesh"), {"preset": "paper", "stepz": 3})

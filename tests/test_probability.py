@@ -1,5 +1,6 @@
-"""Face existence probabilities: sign against an independent triangulation, gradients against finite
-differences, degenerate candidates, the line-crosses-cell case, probability ranges."""
+"""Face existence probabilities (`dmesh.probability`): sign against an independent triangulation, gradients
+against finite differences, degenerate candidates, the line-crosses-cell case, probability ranges, native
+against reference, and the coherent pass against a full search."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,10 +9,10 @@ import torch
 
 import dmesh
 from dmesh import native, probability, wdt
-from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
+from dmesh.candidates import knn_triples
 from dmesh.reference import probability as ref_prob
 from dmesh.reference import wdt as ref_wdt
-from conftest import spacing_weights
+from common import spacing_weights
 
 
 def oracle_faces(points, weights) -> set:
@@ -191,51 +192,61 @@ def test_power_cell_factor_flag():
     assert torch.allclose(with_pc.prob_wdt[plain.in_wdt], plain.prob_wdt[plain.in_wdt], atol=1e-3)
 
 
-def test_candidates_and_cache_only_grow():
-    rng = np.random.default_rng(19)
-    n = 200
-    dm = dmesh.DMesh(rng.random((n, 3)), reals=rng.random(n))
-    dm.face_probabilities()
-    c0, k0 = len(dm.state.candidates), dm.state.cache.csr.indices.copy()
-    with torch.no_grad():
-        dm.points += 0.02 * torch.randn(n, 3, generator=torch.Generator().manual_seed(0))
-    fp = dm.face_probabilities()
-    assert len(dm.state.candidates) >= c0
-    cache = dm.state.cache.csr
-    assert len(cache.indices) >= len(k0)
-    pdn = fp.power_diagram.point_neighbors
-    for i in range(0, n, 17):
-        assert set(pdn.row(i)) <= set(cache.row(i))
-        assert (np.diff(cache.row(i)) > 0).all()
-    dm.new_phase()
-    assert len(dm.state.candidates) == 0
+# -------------------------------------------------------------- native against reference, coherent pass
+
+def test_face_probabilities_agree_between_impls():
+    rng = np.random.default_rng(14)
+    n = 800
+    pts, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
+    import dmesh
+
+    fps = {}
+    for impl in probability.IMPLS:
+        dm = dmesh.DMesh(pts, w, r, config=probability.ProbabilityConfig(impl=impl), dtype=torch.float64)
+        fp = dm.face_probabilities()
+        (fp.prob * torch.linspace(0, 1, len(fp.prob), dtype=torch.float64)).sum().backward()
+        fps[impl] = (fp, [t.grad for t in dm.parameters()])
+    (a, ga), (b, gb) = fps["native"], fps["reference"]
+    assert torch.equal(a.faces, b.faces)
+    for x, y in [(a.delta, b.delta), (a.prob, b.prob), *zip(ga, gb)]:
+        assert torch.allclose(x, y, rtol=1e-9, atol=1e-9 * y.abs().max().item())
 
 
-def test_candidate_faces_validate():
-    c = CandidateFaces(5)
-    c.add([[2, 1, 0], [0, 1, 2], [1, 1, 2]])
-    np.testing.assert_array_equal(c.faces, [[0, 1, 2]])
-    with pytest.raises(ValueError, match="index points"):
-        c.add([[0, 1, 9]])
-    with pytest.raises(ValueError, match="cover"):
-        NeighbourCache(5).update(wdt.Csr(np.zeros(3, np.int32), np.zeros(0, np.int32)))
+def _pair(n: int, seed: int, every: int):
+    """Two DMesh over the same float64 points: full search every pass, and every `every` passes."""
+    import dmesh
+
+    rng = np.random.default_rng(seed)
+    p, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
+    return [dmesh.DMesh(p.copy(), w.copy(), r.copy(), config=probability.ProbabilityConfig(full_search_every=k),
+                        dtype=torch.float64) for k in (1, every)]
 
 
-def test_dmesh_extract_save_load(tmp_path):
-    rng = np.random.default_rng(23)
-    n = 300
-    r = (rng.random(n) > 0.5).astype(np.float32)
-    dm = dmesh.DMesh(rng.random((n, 3)), spacing_weights(rng, n), r)
-    mesh = dm.extract_mesh()
-    pd = dm.power_diagram()
-    expect = pd.faces[(r[pd.faces] > 0.5).all(1)]
-    assert len(mesh.faces) == len(expect) > 0
-    dm.save(tmp_path / "state.npz")
-    back = dmesh.DMesh.load(tmp_path / "state.npz")
-    for a, b in zip(dm.parameters(), back.parameters()):
-        assert torch.equal(a, b)
-    assert back.config == dm.config
-    with pytest.raises(ValueError, match="cannot read"):
-        dmesh.DMesh.load(tmp_path / "missing.npz")
-    with pytest.raises(ValueError, match="reals"):
-        dmesh.DMesh(rng.random((10, 3)), reals=np.full(10, 2.0))
+def test_coherent_pass_matches_a_full_search_under_tiny_moves_and_searches_every_k():
+    full, coherent = _pair(600, 15, every=3)
+    moves = torch.randn(5, 600, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    ages = []
+    for move in moves:
+        a, b = full.face_probabilities(), coherent.face_probabilities()
+        ages.append(coherent.state.coherence.age)
+        assert torch.equal(a.faces, b.faces)
+        # A move of 1e-9 keeps every argmin except at ties closer than ~1e-9, where the distances agree
+        # to that order: the reused argmins give the full search's Delta.
+        assert (a.delta - b.delta).abs().max() < 1e-7
+        for dm in (full, coherent):
+            with torch.no_grad():
+                dm.points += 1e-9 * move
+    assert ages == [0, 1, 2, 0, 1]
+
+
+def test_coherent_pass_searches_around_a_point_whose_neighbours_changed():
+    full, coherent = _pair(600, 16, every=10)
+    for dm in (full, coherent):
+        dm.face_probabilities()
+        with torch.no_grad():
+            dm.points[7] += torch.tensor([0.04, -0.03, 0.02], dtype=torch.float64)   # changes its star
+    a, b = full.face_probabilities(), coherent.face_probabilities()
+    assert coherent.state.coherence.age == 1 and torch.equal(a.faces, b.faces)
+    around = (a.faces == 7).any(1)
+    assert around.sum() > 10
+    assert torch.allclose(a.delta[around], b.delta[around], rtol=0, atol=1e-12)

@@ -14,7 +14,7 @@ from datasets.capture import gl_problem as _gl_problem
 from dmesh import native
 from dmesh.reference.render import soft_render_naive, tet_render_naive
 from dmesh.render import Camera, soft_render, soft_render_views, tet_render, tet_render_views
-from helpers import assert_close
+from common import assert_close
 
 OUTPUTS = ("diffuse", "depth", "alpha")
 

@@ -1,15 +1,18 @@
 """Reports from a hand-made results store: per-class means, counts and failures match hand computations,
 CSV keeps raw units, Markdown shows x1e-3, the paper's numbers sit beside our rows, Table 1 from an RE/FP row,
-and the whole report folder (with index.html) is written without temporary leftovers."""
+the whole report folder (with index.html) is written without temporary leftovers, DMesh recipes, the
+training-curves figure, and the multi-view table's alias."""
 from __future__ import annotations
 
 import csv
 import math
 
+import pandas as pd
 import pytest
 
 from datasets.capture import gl_problem as _gl_problem
 from eval.reports import paper_numbers, tables, write_reports
+from eval.reports.recipes import recipe_markdown, recipe_rows
 from eval.store import Store
 
 
@@ -196,3 +199,70 @@ def test_text_fields_show_empty_for_missing_values():
 
     assert text("boom") == "boom"
     assert text(None) == "" and text(float("nan")) == ""  # pandas fills an empty text column with NaN
+
+
+def test_recipe_rows_name_preset_kind_and_overrides():
+    df = pd.DataFrame([
+        {"method": "dmesh", "config_label": "", "input_kind": "pointcloud"},
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud"},
+        {"method": "dmesh", "config_label": "lr=1e-05,preset=paper", "input_kind": "pointcloud"},
+        {"method": "psr", "config_label": "", "input_kind": "pointcloud"},
+        {"method": "dmesh_mv", "config_label": "preset=depth", "input_kind": "multiview"},
+    ])
+    rows = {r["method"]: r for r in recipe_rows(df, "pointcloud")}
+    assert set(rows) == {"dmesh", "dmesh [preset=paper]", "dmesh [lr=1e-05,preset=paper]"}
+    assert rows["dmesh"]["preset"] == "fast" and rows["dmesh"]["kind"] == "initialisation"
+    assert rows["dmesh [preset=paper]"]["kind"] == "gradient steps"
+    assert rows["dmesh [lr=1e-05,preset=paper]"]["recipe"].endswith("Overrides: lr=1e-05.")
+    mv = recipe_rows(df, "multiview")
+    assert [(r["method"], r["kind"]) for r in mv] == [("dmesh [preset=depth]", "initialisation")]
+    md = recipe_markdown(mv)
+    assert md.startswith("## DMesh recipes") and "| dmesh [preset=depth] | depth | initialisation |" in md
+    assert recipe_markdown([]) == "" and recipe_rows(df.iloc[:0], "pointcloud") == []
+
+
+def test_curves_figure_from_stored_run_info(tmp_path):
+    from eval.reports.curves import curve_figure, curve_runs
+
+    curve = [{"phase": 1, "step": 49, "loss": 0.02, "cd_p2s": 2e-3}, {"phase": 1, "step": 99, "loss": 0.015,
+              "cd_p2s": 1.5e-3}, {"phase": 2, "step": 49, "loss": 0.014, "cd_p2s": 1.4e-3}]
+    df = pd.DataFrame([
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "status": "done",
+         "shape": "torus", "category": "closed", "info": {"curve": curve}},
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "status": "done",
+         "shape": "zz", "category": "closed", "info": {"curve": curve}},     # second closed shape: not drawn
+        {"method": "dmesh", "config_label": "", "input_kind": "pointcloud", "status": "done",
+         "shape": "torus", "category": "closed", "info": {"curve": curve[:1]}},  # one point: no line
+    ])
+    runs = curve_runs(df)
+    assert [(r["label"], r["shape"]) for r in runs] == [("dmesh [preset=paper]", "torus")]
+    from eval.reports.curves import _x
+
+    assert _x(curve) == [50, 100, 150]
+    out = curve_figure(runs, tmp_path / "c.png", "t")
+    assert out.is_file() and out.stat().st_size > 1000
+    assert curve_figure([], tmp_path / "none.png", "t") is None and not (tmp_path / "none.png").exists()
+
+
+def test_multiview_table_shows_dmesh_mv_as_dmesh(tmp_path):
+    from eval.reports import tables
+    from eval.store import Store
+
+    def row(key, method, kind, cd):
+        return {"key": key, "method": method, "config_label": "", "shape": "torus", "category": "closed",
+                "input_kind": kind, "config_json": {}, "inputs_json": {"views": 64, "metric_samples": 1000},
+                "seed": 0, "status": "done", "error": None, "gt_hash": "0" * 64, "code_version": "test",
+                "metrics_json": {"cd_p2s": cd, "cd_l1": cd}, "timings_json": {"total": 1.0}, "info_json": {},
+                "peak_memory_mb": 1.0}
+
+    with Store(tmp_path / "s.sqlite") as s:
+        s.upsert(row("a", "dmesh_mv", "multiview", 2e-3))
+        s.upsert(row("b", "tsdf", "multiview", 1e-3))
+        s.upsert(row("c", "dmesh", "pointcloud", 3e-3))
+        df = s.dataframe()
+    mv = {r["method"]: r for r in tables.table2(df, "multiview")}
+    assert set(mv) == {"dmesh", "tsdf"} and mv["dmesh"]["cd_p2s"] == 2e-3
+    assert mv["dmesh"]["paper_cd_l1"] is not None   # the paper's "Ours" row sits beside it
+    assert [r["method"] for r in tables.table2(df, "pointcloud")] == ["dmesh"]
+    md, _ = tables.write_table2(df, tmp_path / "rep", "multiview")
+    assert "dmesh_mv" not in md.read_text() and "| dmesh |" in md.read_text()

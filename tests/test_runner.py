@@ -116,7 +116,8 @@ def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
 
     psr, bpa, dm = get_method("psr"), get_method("bpa"), get_method("dmesh")
     assert "baselines/psr.py" in method_trees(psr) and "baselines/bpa.py" not in method_trees(psr)
-    assert not any(t.startswith("dmesh/") or t == "native" for t in method_trees(psr))
+    # psr follows the input generation (the capture's camera maths is dmesh/camera.py), not the DMesh procedures
+    assert not any(t.startswith(("dmesh/recon/", "dmesh/probability")) or t == "native" for t in method_trees(psr))
     assert {"dmesh/recon/pointcloud.py", "dmesh/losses/chamfer.py", "native"} <= set(method_trees(dm))
     assert {"datasets/synthetic.py", "eval/metrics.py"} <= set(method_trees(psr))
 
@@ -408,3 +409,14 @@ def test_resolve_mesh_path_of_a_failed_run(tmp_path):
     assert resolve_mesh_path({"mesh_path": None}, db) is None
     assert resolve_mesh_path({"mesh_path": float("nan")}, db) is None  # a failed row read through pandas
     assert resolve_mesh_path({"mesh_path": "meshes/a.ply"}, db) == tmp_path / "meshes" / "a.ply"
+
+
+def test_sweep_configs_may_name_a_preset():
+    from baselines.registry import get_method
+    from dmesh.recon.config import PointCloudConfig
+    from eval.sweep import build_config
+
+    cfg, as_dict = build_config(get_method("dmesh"), {"preset": "paper", "steps_phase1": 3})
+    assert cfg == PointCloudConfig.paper(steps_phase1=3) and as_dict["num_init"] == 10_000
+    with pytest.raises(ValueError, match="unknown config keys"):
+        build_config(get_method("dmesh"), {"preset": "paper", "stepz": 3})

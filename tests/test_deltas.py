@@ -1,14 +1,16 @@
-"""Fused native Delta kernels (native/src/delta_recompute.h) against finite differences, against the torch
-reference (dmesh.reference.probability) and across thread counts."""
+"""Per-vertex distances (`dmesh.deltas`): the fused native Delta kernels (native/src/delta_recompute.h)
+against finite differences, against the torch reference (dmesh.reference.probability) and across thread
+counts."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
 
-from dmesh import native, probability, wdt
+from dmesh import deltas, native, probability, wdt
 from dmesh.candidates import knn_triples
-from conftest import spacing_weights
+from common import leaves, spacing_weights
+
 
 # A short ray keeps hull-face values O(1), so gradcheck's default tolerances apply to them as to the rest.
 RAY = 3.0
@@ -29,20 +31,16 @@ def _candidates(p: np.ndarray, pd: wdt.PowerDiagram) -> np.ndarray:
     return faces.astype(np.int32)
 
 
-def _leaves(p, w):
-    return torch.tensor(p, requires_grad=True), torch.tensor(w, requires_grad=True)
-
-
 def test_existing_deltas_gradcheck_including_hull_rays():
     p, w, pd = _config(24, seed=1)
     assert pd.is_hull.sum() >= 4 and (~pd.is_hull).sum() >= 4
     hull = np.flatnonzero(pd.is_hull)[:6]
     inner = np.flatnonzero(~pd.is_hull)[:10]
     ids = np.concatenate([hull, inner])
-    pt, wt = _leaves(p, w)
+    pt, wt = leaves(p, w)
 
     def f(pp, ww):
-        return probability.existing_deltas(pp, ww, pd, pd.point_neighbors, RAY, face_ids=ids)
+        return deltas.existing_deltas(pp, ww, pd, pd.point_neighbors, RAY, face_ids=ids)
 
     d = f(pt, wt)
     assert (d.detach() != RAY).all()  # every vertex has a plane: all 3 * K values carry a gradient
@@ -62,10 +60,10 @@ def test_candidate_deltas_gradcheck_including_nearest_rays():
     assert len(ray_rows) >= 2 and len(seg_rows) >= 2
     rows = np.concatenate([ray_rows[:6], seg_rows[:6]])
     sub = cand[rows]
-    pt, wt = _leaves(p, w)
+    pt, wt = leaves(p, w)
 
     def f(pp, ww):
-        return probability.nonexisting_deltas(pp, ww, pd, sub, RAY)
+        return deltas.nonexisting_deltas(pp, ww, pd, sub, RAY)
 
     # Same tolerances as above; the crossing test and the edge search are discrete and stay fixed within eps
     # on this seed (the forward searches again at every perturbed point).
@@ -81,10 +79,10 @@ def test_native_matches_the_torch_reference(band):
     up_e = torch.from_numpy(rng.random((len(pd.faces), 3)))
     up_c = torch.from_numpy(rng.random((len(cand), 3)))
     out = {}
-    for impl in probability.IMPLS:
-        pt, wt = _leaves(p, w)
-        e = probability.existing_deltas(pt, wt, pd, pd.point_neighbors, 500.0, upper=band, impl=impl)
-        c = probability.nonexisting_deltas(pt, wt, pd, cand, 500.0, band=band, impl=impl)
+    for impl in deltas.IMPLS:
+        pt, wt = leaves(p, w)
+        e = deltas.existing_deltas(pt, wt, pd, pd.point_neighbors, 500.0, upper=band, impl=impl)
+        c = deltas.nonexisting_deltas(pt, wt, pd, cand, 500.0, band=band, impl=impl)
         ((e * up_e).sum() + (c * up_c).sum()).backward()
         out[impl] = [e.detach(), c.detach(), pt.grad, wt.grad]
     # Same formulas in a different evaluation order: agreement to round-off (~1e-13 relative to the largest
@@ -120,16 +118,16 @@ def test_backward_is_bitwise_identical_on_one_and_two_threads():
 
 def test_inactive_rows_and_missing_neighbours_get_no_gradient():
     p, w, pd = _config(200, seed=12)
-    pt, wt = _leaves(p, w)
+    pt, wt = leaves(p, w)
     # An empty neighbour cache: no plane for any vertex, value ray_length and no gradient.
     empty = wdt.Csr(np.zeros(len(p) + 1, np.int32), np.zeros(0, np.int32))
-    d = probability.existing_deltas(pt, wt, pd, empty, 7.0)
+    d = deltas.existing_deltas(pt, wt, pd, empty, 7.0)
     assert (d == 7.0).all()
     d.sum().backward()
     assert not pt.grad.any() and not wt.grad.any()
     # upper below every Delta: every row inactive.
     pt.grad = wt.grad = None
-    d = probability.existing_deltas(pt, wt, pd, pd.point_neighbors, 7.0, upper=0.0)
+    d = deltas.existing_deltas(pt, wt, pd, pd.point_neighbors, 7.0, upper=0.0)
     d.sum().backward()
     assert not pt.grad.any() and not wt.grad.any()
 
@@ -154,96 +152,11 @@ def test_native_kernels_validate_their_inputs():
         probability.ProbabilityConfig(impl="cuda")
 
 
-def test_face_probabilities_agree_between_impls():
-    rng = np.random.default_rng(14)
-    n = 800
-    pts, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
-    import dmesh
-
-    fps = {}
-    for impl in probability.IMPLS:
-        dm = dmesh.DMesh(pts, w, r, config=probability.ProbabilityConfig(impl=impl), dtype=torch.float64)
-        fp = dm.face_probabilities()
-        (fp.prob * torch.linspace(0, 1, len(fp.prob), dtype=torch.float64)).sum().backward()
-        fps[impl] = (fp, [t.grad for t in dm.parameters()])
-    (a, ga), (b, gb) = fps["native"], fps["reference"]
-    assert torch.equal(a.faces, b.faces)
-    for x, y in [(a.delta, b.delta), (a.prob, b.prob), *zip(ga, gb)]:
-        assert torch.allclose(x, y, rtol=1e-9, atol=1e-9 * y.abs().max().item())
-
-
-def _pair(n: int, seed: int, every: int):
-    """Two DMesh over the same float64 points: full search every pass, and every `every` passes."""
-    import dmesh
-
-    rng = np.random.default_rng(seed)
-    p, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
-    return [dmesh.DMesh(p.copy(), w.copy(), r.copy(), config=probability.ProbabilityConfig(full_search_every=k),
-                        dtype=torch.float64) for k in (1, every)]
-
-
-def test_coherent_pass_matches_a_full_search_under_tiny_moves_and_searches_every_k():
-    full, coherent = _pair(600, 15, every=3)
-    moves = torch.randn(5, 600, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-    ages = []
-    for move in moves:
-        a, b = full.face_probabilities(), coherent.face_probabilities()
-        ages.append(coherent.state.coherence.age)
-        assert torch.equal(a.faces, b.faces)
-        # A move of 1e-9 keeps every argmin except at ties closer than ~1e-9, where the distances agree
-        # to that order: the reused argmins give the full search's Delta.
-        assert (a.delta - b.delta).abs().max() < 1e-7
-        for dm in (full, coherent):
-            with torch.no_grad():
-                dm.points += 1e-9 * move
-    assert ages == [0, 1, 2, 0, 1]
-
-
-def test_coherent_pass_searches_around_a_point_whose_neighbours_changed():
-    full, coherent = _pair(600, 16, every=10)
-    for dm in (full, coherent):
-        dm.face_probabilities()
-        with torch.no_grad():
-            dm.points[7] += torch.tensor([0.04, -0.03, 0.02], dtype=torch.float64)   # changes its star
-    a, b = full.face_probabilities(), coherent.face_probabilities()
-    assert coherent.state.coherence.age == 1 and torch.equal(a.faces, b.faces)
-    around = (a.faces == 7).any(1)
-    assert around.sum() > 10
-    assert torch.allclose(a.delta[around], b.delta[around], rtol=0, atol=1e-12)
-
-
 def test_orthocentres_gradcheck():
     p, w, pd = _config(24, seed=1)
-    pt, wt = _leaves(p, w)
+    pt, wt = leaves(p, w)
 
     def f(pp, ww):  # a fresh handle per call: its forward returns the orthocentres it computed
-        return probability.orthocentres(pp, ww, probability.delta_diagram(pp, ww, pd))
+        return deltas.orthocentres(pp, ww, deltas.delta_diagram(pp, ww, pd))
 
     assert torch.autograd.gradcheck(f, (pt, wt), nondet_tol=0.0)
-
-
-def test_weight_regularizer_native_matches_the_torch_reference():
-    from dmesh.losses.regularizers import weight_regularizer
-
-    rng = np.random.default_rng(3)
-    n = 2000
-    p = rng.random((n, 3))
-    w = spacing_weights(rng, n, scale=0.1)
-    pd = wdt.PowerDiagram.from_points(p, w)
-    out = []
-    for native_impl in (True, False):
-        pt, wt = _leaves(p, w)
-        diagram = probability.delta_diagram(pt, wt, pd) if native_impl else None
-        reg = weight_regularizer(pt, wt, pd, max_length=0.05, diagram=diagram)  # some edges clamped
-        reg.backward()
-        out.append((reg.detach(), pt.grad, wt.grad))
-    (rn, gpn, gwn), (rr, gpr, gwr) = out
-    assert (gwr != 0).sum() > n // 2
-    torch.testing.assert_close(rn, rr, rtol=1e-9, atol=0.0)
-    torch.testing.assert_close(gpn, gpr, rtol=1e-9, atol=1e-9 * gpr.abs().max().item())
-    torch.testing.assert_close(gwn, gwr, rtol=1e-9, atol=1e-9 * gwr.abs().max().item())
-    # The adjoint's per-point reduction does not depend on the thread count.
-    g = rng.standard_normal((len(pd.tets), 3))
-    grads = [native.orthocentre_backward(native.delta_diagram(p, w, pd, num_threads=t), g, num_threads=t)
-             for t in (1, 3)]
-    assert all(np.array_equal(a, b) for a, b in zip(*grads))

@@ -1,0 +1,50 @@
+"""The initial DMesh (`dmesh.recon.init`): Voronoi poles off the surface, carving faces that span holes."""
+from __future__ import annotations
+
+import numpy as np
+
+from dmesh import wdt
+from dmesh.extract import mesh_faces
+from dmesh.recon.init import poles, seeds_and_voronoi
+
+
+def test_poles_lie_off_the_surface_on_both_sides():
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(400, 3))
+    sphere = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0.99, 1.01, (400, 1))
+    corners = 3.0 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    pd = wdt.PowerDiagram.from_points(np.concatenate([sphere, corners]), None)
+    ids = poles(pd, len(sphere))
+    r = np.linalg.norm(pd.orthocentres[ids], axis=1)
+    r_all = np.linalg.norm(pd.orthocentres, axis=1)
+    # Inner poles sit near the centre (the medial axis of a sphere), outer ones far outside. Few hug the
+    # surface (measured: 0.4 % of the poles against 3.3 % of all Voronoi vertices), which is what keeps
+    # them from punching holes into the first mesh.
+    assert (r < 0.5).any() and (r > 1.3).any()
+    assert (np.abs(r - 1) < 0.1).mean() < 0.25 * (np.abs(r_all - 1) < 0.1).mean()
+    assert len(ids) <= 2 * len(sphere)
+
+
+def test_carving_removes_faces_spanning_holes():
+    from scipy.spatial import cKDTree
+
+    from datasets import normalize, sampling, synthetic
+    from dmesh.recon.init import carve_far_faces
+
+    gt, _ = normalize.normalize(synthetic.generate("wavy_sheet", seed=0))   # an open sheet with 3 holes
+    data, _ = sampling.sample_points(gt, 20_000, seed=0)
+    pos, reals = seeds_and_voronoi(data, 4000, np.random.default_rng(0), vertices="poles")
+
+    def far_area(p, r):
+        pd = wdt.PowerDiagram.from_points(p, None)
+        f = pd.faces[mesh_faces(pd, r > 0.5, "sheet")]
+        d = cKDTree(data).query(p[f].mean(1))[0]
+        area = 0.5 * np.linalg.norm(np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]), axis=1)
+        return area[d > 0.05].sum(), len(f)
+
+    before, n_before = far_area(pos, reals)
+    pos2, reals2, added = carve_far_faces(pos, reals, data)
+    after, n_after = far_area(pos2, reals2)
+    assert before > 0.01 and added > 0                # the holes are spanned at first ...
+    assert after == 0.0 and n_after > 0.95 * n_before  # ... and only those faces go
+    assert (reals2[len(reals):] == 0).all() and np.array_equal(pos2[:len(pos)], pos)

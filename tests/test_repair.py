@@ -1,0 +1,108 @@
+"""Face repairs (`dmesh.repair`): hole filling, fans split at shared vertices and edges, sheet winding."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from datasets.synthetic import generate
+from dmesh import repair
+from common import check_closed, cycle
+
+
+def test_fill_holes_restores_a_box():
+    box = trimesh.creation.box()
+    for drop in ([0], [0, 1]):  # a triangle hole and a square one
+        keep = np.setdiff1d(np.arange(len(box.faces)), drop)
+        fill, filled, left = repair.fill_holes(box.vertices, box.faces[keep], max_edges=8)
+        assert (filled, left) == (1, 0)
+        mesh = check_closed(np.concatenate([box.faces[keep], fill]), box.vertices)
+        assert mesh.volume == pytest.approx(1.0)
+    # Too large a hole stays open.
+    assert repair.fill_holes(box.vertices, box.faces[2:], max_edges=3)[1:] == (0, 1)
+
+
+def test_hole_loops_split_at_a_shared_vertex():
+    bowtie = np.array([[0, 1, 2], [0, 3, 4]])  # two triangles that share vertex 0 only
+    loops = repair.hole_loops(bowtie)
+    assert sorted(sorted(loop) for loop in loops) == [[0, 1, 2], [0, 3, 4]]
+    assert {cycle(loop) for loop in loops} == {(0, 2, 1), (0, 4, 3)}  # against the faces' winding
+    assert repair.nonmanifold_vertices(bowtie).tolist() == [0]
+
+
+def test_sheets_meeting_at_an_edge_are_split_and_folds_dropped():
+    box = trimesh.creation.box()
+    e = box.edges_unique[0]
+    v = np.vstack([box.vertices, box.vertices[e].mean(0) + [0, 0, 3.0]])
+    faces = np.concatenate([box.faces, [[e[0], e[1], len(box.vertices)]]])  # a fin on a box edge
+    split, source = repair.split_fans(faces)
+    assert len(repair.nonmanifold_edges(split)) == 0 and len(repair.nonmanifold_vertices(split)) == 0
+    assert len(source) == len(v) + 2 and np.array_equal(v[source][split], v[faces])  # nothing moved
+    assert np.array_equal(source[:len(v)], np.arange(len(v)))
+    # Three faces around one edge that are joined around both its ends cannot be split: the smallest goes.
+    fold = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [2, 4, 0], [3, 2, 1]])
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0.2, 0.1]], float)
+    keep = repair.drop_crowding(pts, fold)
+    assert keep.sum() == 4 and not keep[2]
+
+
+def test_sheet_winding_follows_the_normals_or_the_volume():
+    box = trimesh.creation.box()
+    scrambled = box.faces.copy()
+    scrambled[::2] = scrambled[::2, ::-1]
+    out = repair.orient_sheets(box.vertices, scrambled)
+    assert trimesh.Trimesh(box.vertices, out, process=False).volume == pytest.approx(1.0)
+    centres, normals = box.triangles_center, box.face_normals
+    inward = repair.orient_sheets(box.vertices, scrambled, (centres, -normals))
+    assert trimesh.Trimesh(box.vertices, inward, process=False).volume == pytest.approx(-1.0)
+    # Faces without a shared edge: each is its own component and faces its normal.
+    lone = repair.orient_sheets(box.vertices, scrambled[[0, 5]], (centres[[0, 5]], normals[[0, 5]]))
+    assert (np.einsum("ij,ij->i", trimesh.Trimesh(box.vertices, lone, process=False).face_normals,
+                      normals[[0, 5]]) > 0).all()
+    # A Mobius strip cannot be wound consistently: one seam is left, nothing fails.
+    strip = generate("mobius")
+    flip, comp, n = repair.winding_components(np.asarray(strip.faces))
+    assert n == 1 and 0 < flip.sum() < len(strip.faces)
+
+
+def test_orientation_is_consistent():
+    import trimesh
+
+    box = trimesh.creation.box()
+    faces = box.faces.copy()
+    faces[::2] = faces[::2, ::-1]                       # scramble the winding of every other face
+    mesh = trimesh.Trimesh(box.vertices, faces, process=False)
+    repair.orient_faces(mesh)
+    assert mesh.is_winding_consistent and mesh.volume > 0
+
+
+def test_crumbs_are_the_small_edge_connected_pieces():
+    grid = trimesh.creation.box().faces  # 12 faces, one piece
+    stray = np.array([[20, 21, 22]])  # a lone triangle
+    pair = np.array([[30, 31, 32], [31, 32, 33]])  # two triangles sharing an edge
+    touching = np.array([[0, 40, 41]])  # shares only a vertex with the box: a piece of its own
+    faces = np.concatenate([grid, stray, pair, touching])
+    assert repair.crumbs(faces, 2).tolist() == [False] * 12 + [True, True, True, True]
+    assert repair.crumbs(faces, 1).tolist() == [False] * 12 + [True, False, False, True]
+    assert not repair.crumbs(faces, 0).any() and repair.crumbs(faces, 12).all()
+    assert repair.crumbs(np.zeros((0, 3), np.int64), 4).shape == (0,)
+
+
+def test_surface_drops_stray_sheet_triangles_so_a_closed_part_stays_watertight():
+    from dmesh import wdt
+    from dmesh.extract import SurfaceConfig, surface
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(400, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    inner = 0.3 * rng.normal(size=(40, 3))
+    pd = wdt.PowerDiagram.from_points(np.concatenate([pts, inner]), None)
+    hull = pd.is_hull
+    walls = hull.copy()
+    inner_faces = np.flatnonzero((pd.faces >= len(pts)).all(1))  # faces among the interior points only
+    walls[inner_faces[:1]] = True  # one stray triangle inside the ball
+    for max_crumb, expect_stray in ((4, False), (0, True)):
+        out = surface(pd, walls, config=SurfaceConfig(max_crumb=max_crumb))
+        mesh = trimesh.Trimesh(pd.points[out.vertices], out.faces, process=False)
+        assert (len(out.faces) == int(hull.sum()) + 1) == expect_stray and out.info["crumbs_dropped"] == (not expect_stray)
+        assert mesh.split(only_watertight=False)[0].is_watertight
