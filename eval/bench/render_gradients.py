@@ -24,9 +24,13 @@ three ways:
   that the true images' loss has, which a silhouette term should follow.
 
 rel_soft = |autograd - fd_soft| / |fd_soft|; rel_hard = |autograd - fd_hard| / |fd_hard|. The step h moves the
-vertices by about 0.05 pixel (the kernel runs in float32). The targets are hard renders, without the soft band
-that the procedure's phase-1 targets carry (`dmesh.recon.views.soft_band_targets`), so the silhouette rows show
-what that band does to the gradient: the soft silhouette lies about half a band width outside the hard one.
+vertices by about 0.05 pixel (the kernel runs in float32). Two kinds of targets for the soft loss (the hard
+loss always compares with the hard targets, the true images):
+
+- hard: hard renders of the target sphere, without the soft band that the procedure's phase-1 targets carry
+  (`dmesh.recon.views.soft_band_targets`): the soft silhouette lies about half a band outside the hard one;
+- band: soft renders of the target sphere, the ideal band targets (what the band would look like on the true
+  shape): the soft loss's minimum is then at the target.
 
 Regenerate: `python -m eval.bench render_gradients`.
 """
@@ -115,29 +119,34 @@ def check(resolution: int, views: int, directions: int, h: float) -> list[dict]:
     faces = torch.from_numpy(np.asarray(mesh.faces, dtype=np.int64))
     x0 = torch.tensor(np.asarray(mesh.vertices), dtype=torch.float32)
     with torch.no_grad():
-        targets = [_channels(_render(x0 * TARGET_SCALE, faces, cam, hard=True)) for cam in cams]
+        hard_targets = [_channels(_render(x0 * TARGET_SCALE, faces, cam, hard=True)) for cam in cams]
+        band_targets = [_channels(_render(x0 * TARGET_SCALE, faces, cam, hard=False)) for cam in cams]
     rows = []
     groups = _groups(mesh, dirs)
-    for channels in CHANNELS:
-        x = x0.clone().requires_grad_(True)
-        (grad,) = torch.autograd.grad(_loss(x, faces, cams, targets, False, channels), x)
-        rng = np.random.default_rng(1)  # the same directions for every channel set
-        for group, mask in groups.items():
-            for k in range(directions):
-                u = np.zeros((len(mesh.vertices), 3))
-                u[mask] = rng.normal(size=(int(mask.sum()), 3))
-                ut = torch.from_numpy(u / np.linalg.norm(u)).float()
-                auto = float((grad.double() * ut.double()).sum())
-                with torch.no_grad():
-                    fd = {hard: (float(_loss(x0 + h * ut, faces, cams, targets, hard, channels))
-                                 - float(_loss(x0 - h * ut, faces, cams, targets, hard, channels))) / (2 * h)
-                          for hard in (False, True)}
-                rows.append({"resolution": resolution, "channels": channels, "group": group,
-                             "vertices": int(mask.sum()), "direction": k, "autograd": auto, "fd_soft": fd[False],
-                             "fd_hard": fd[True], "rel_soft": abs(auto - fd[False]) / max(abs(fd[False]), 1e-12),
-                             "rel_hard": abs(auto - fd[True]) / max(abs(fd[True]), 1e-12)})
-                print(f"  {resolution} px {channels} {group} u{k}: autograd {auto:.4g} fd_soft {fd[False]:.4g} "
-                      f"fd_hard {fd[True]:.4g}", flush=True)
+    for target_kind, targets in (("hard", hard_targets), ("band", band_targets)):
+        for channels in CHANNELS:
+            x = x0.clone().requires_grad_(True)
+            (grad,) = torch.autograd.grad(_loss(x, faces, cams, targets, False, channels), x)
+            rng = np.random.default_rng(1)  # the same directions for every channel set
+            for group, mask in groups.items():
+                for k in range(directions):
+                    u = np.zeros((len(mesh.vertices), 3))
+                    u[mask] = rng.normal(size=(int(mask.sum()), 3))
+                    ut = torch.from_numpy(u / np.linalg.norm(u)).float()
+                    auto = float((grad.double() * ut.double()).sum())
+                    with torch.no_grad():  # the soft loss on these targets; the hard loss on the hard targets
+                        fd = {hard: (float(_loss(x0 + h * ut, faces, cams, hard_targets if hard else targets, hard,
+                                                 channels))
+                                     - float(_loss(x0 - h * ut, faces, cams, hard_targets if hard else targets, hard,
+                                                   channels))) / (2 * h)
+                              for hard in (False, True)}
+                    rows.append({"resolution": resolution, "targets": target_kind, "channels": channels,
+                                 "group": group, "vertices": int(mask.sum()), "direction": k, "autograd": auto,
+                                 "fd_soft": fd[False], "fd_hard": fd[True],
+                                 "rel_soft": abs(auto - fd[False]) / max(abs(fd[False]), 1e-12),
+                                 "rel_hard": abs(auto - fd[True]) / max(abs(fd[True]), 1e-12)})
+                    print(f"  {resolution} px {target_kind} {channels} {group} u{k}: autograd {auto:.4g} "
+                          f"fd_soft {fd[False]:.4g} fd_hard {fd[True]:.4g}", flush=True)
     return rows
 
 
@@ -186,24 +195,25 @@ def main(out: str = "reports", quick: bool = False) -> None:
         # h: about 0.05 pixel at the object (focal length ~ 0.78 R pixels per unit at distance 2)
         h = 0.05 / (0.78 * resolution / 2.0)
         rows += check(resolution, views=2 if quick else 4, directions=2 if quick else 4, h=h)
-    cols = ["resolution", "channels", "group", "vertices", "direction", "autograd", "fd_soft", "fd_hard", "rel_soft",
-            "rel_hard"]
-    fmt = {c: ".3g" for c in cols[5:]}
+    cols = ["resolution", "targets", "channels", "group", "vertices", "direction", "autograd", "fd_soft", "fd_hard",
+            "rel_soft", "rel_hard"]
+    fmt = {c: ".3g" for c in cols[6:]}
     summary = []
-    for key in sorted({(r["resolution"], r["channels"], r["group"]) for r in rows}, key=str):
-        sel = [r for r in rows if (r["resolution"], r["channels"], r["group"]) == key]
+    for key in sorted({(r["resolution"], r["targets"], r["channels"], r["group"]) for r in rows}, key=str):
+        sel = [r for r in rows if (r["resolution"], r["targets"], r["channels"], r["group"]) == key]
         same = {f: float(np.mean([np.sign(r["autograd"]) == np.sign(r[f]) for r in sel])) for f in ("fd_soft", "fd_hard")}
-        summary.append({"resolution": key[0], "channels": key[1], "group": key[2], "directions": len(sel),
+        summary.append({"resolution": key[0], "targets": key[1], "channels": key[2], "group": key[3],
+                        "directions": len(sel),
                         "sign_as_fd_soft": same["fd_soft"], "sign_as_fd_hard": same["fd_hard"],
                         "median_rel_soft": float(np.median([r["rel_soft"] for r in sel])),
                         "median_rel_hard": float(np.median([r["rel_hard"] for r in sel]))})
     small_cols = ["scene", "channel", "autograd", "fd_h0.01", "fd_h0.003", "fd_h0.001", "rel_err"]
     intro = __doc__.split("\n\n", 1)[1].rsplit("Regenerate", 1)[0].strip()
-    sum_cols = ["resolution", "channels", "group", "directions", "sign_as_fd_soft", "sign_as_fd_hard",
+    sum_cols = ["resolution", "targets", "channels", "group", "directions", "sign_as_fd_soft", "sign_as_fd_hard",
                 "median_rel_soft", "median_rel_hard"]
     table = (markdown_table(small, small_cols, {c: ".5g" for c in small_cols[2:]}) + "\n\n"
              + "Sphere, per group: the fraction of directions where autograd has the sign of each difference, and the"
-             " median relative errors.\n\n" + markdown_table(summary, sum_cols, {c: ".2f" for c in sum_cols[4:]})
+             " median relative errors.\n\n" + markdown_table(summary, sum_cols, {c: ".2f" for c in sum_cols[5:]})
              + "\n\nSphere, every direction:\n\n" + markdown_table(rows, cols, fmt))
     write_report(out, "bench_render_gradients", "Soft-render gradients against a hard render", intro, table,
                  rows)
