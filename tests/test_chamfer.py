@@ -317,3 +317,27 @@ def test_dmesh_chamfer_gradients(rng):
     loss.backward()
     for p in dm.parameters():
         assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0
+
+
+def test_loss_floor_bench_gradient_matches_finite_differences_and_plane_has_no_floor():
+    """`eval.bench.loss_floor`'s two-sided distances: gradients against central differences; on a flat patch the
+    point-to-plane distance of two independent samplings is 0 while the Euclidean one is not (the floor)."""
+    from eval.bench.loss_floor import loss_and_gradient
+
+    rng = np.random.default_rng(0)
+    t = np.c_[rng.uniform(-1, 1, (400, 2)), np.zeros(400)]
+    s = np.c_[rng.uniform(-1, 1, (300, 2)), np.zeros(300)]
+    n_t = np.tile([0.0, 0.0, 1.0], (400, 1))
+    n_s = np.tile([0.0, 0.0, 1.0], (300, 1))
+    floor_e, _ = loss_and_gradient(s, n_s, t, n_t, "euclidean")
+    floor_p, _ = loss_and_gradient(s, n_s, t, n_t, "plane")
+    assert floor_e > 0.02 and floor_p == 0.0
+    moved = s + [0.0, 0.0, 0.01] + 1e-3 * rng.normal(size=s.shape)  # off the plane: no kink at the matches
+    u = rng.normal(size=s.shape)
+    u /= np.linalg.norm(u)
+    h = 1e-7  # small enough that no nearest neighbour changes
+    for mode in ("euclidean", "plane"):
+        _, g = loss_and_gradient(moved, n_s, t, n_t, mode)
+        fd = (loss_and_gradient(moved + h * u, n_s, t, n_t, mode)[0]
+              - loss_and_gradient(moved - h * u, n_s, t, n_t, mode)[0]) / (2 * h)
+        assert (g * u).sum() == pytest.approx(fd, rel=1e-4)

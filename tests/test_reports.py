@@ -128,7 +128,8 @@ def test_empty_store_gives_empty_tables_not_errors(tmp_path):
     names = sorted(p.name for p in written)
     assert names == sorted(["table2_pointcloud.md", "table2_pointcloud.csv", "table2_multiview.md",
                             "table2_multiview.csv", "table1.md", "table1.csv", "index.html", "ablation_weight.md",
-                            "ablation_weight.csv", "ablation_quality.md", "ablation_quality.csv"])
+                            "ablation_weight.csv", "ablation_quality.md", "ablation_quality.csv",
+                            "recipes_size.md", "recipes_size.csv"])
     assert "No point cloud runs" in (tmp_path / "rep" / "table2_pointcloud.md").read_text()
 
 
@@ -192,6 +193,42 @@ def test_ablation_tables_average_per_value_and_stay_out_of_table2(tmp_path):
     write_reports(path, tmp_path / "rep", renders=False)
     assert [r["method"] for r in csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv"))] == ["psr"]
     assert "1e-06" in (tmp_path / "rep" / "ablation_weight.md").read_text()
+
+
+def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of_table2(tmp_path):
+    from eval.reports.size import interpolate, size_rows
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        # The fast start on the torus at 2K, 8K and 80K faces, CD falling as 1 / sqrt(faces); the paper preset at
+        # 4K faces and the fast start + steps at 2K; a plant with a paper run only (no size curve).
+        for i, (label, faces, cd) in enumerate([("num_init=1000", 2000, 8e-3), ("num_init=4000", 8000, 4e-3),
+                                                ("", 80000, 0.4e-3), ("preset=paper", 4000, 1e-3),
+                                                ("num_init=1000,steps_phase1=200", 2000, 2e-3)]):
+            r = _row(f"t{i}", "dmesh", "torus", "closed", "done", metrics={"cd_p2s": cd, "cd_l1": cd, "faces": faces},
+                     time_s=100.0 if label == "preset=paper" else 10.0)
+            r.update(config_label=label)
+            s.upsert(r)
+        r = _row("pl", "dmesh", "plant", "mixed", "done", metrics={"cd_p2s": 2e-3, "faces": 1000}, time_s=50.0)
+        r.update(config_label="preset=paper")
+        s.upsert(r)
+        df = s.dataframe()
+    assert interpolate([(2000, 8e-3), (8000, 4e-3)], 4000) == pytest.approx(8e-3 / math.sqrt(2))
+    assert interpolate([(2000, 8e-3), (8000, 4e-3)], 1000) is None
+    rows = {(r["shape"], r["recipe"]): r for r in size_rows(df)}
+    assert sorted(rows) == [("plant", "paper preset"), ("torus", "fast start, 1000 seeds + 200 steps"),
+                            ("torus", "paper preset")]
+    paper = rows["torus", "paper preset"]
+    assert paper["fast_cd_p2s_at_faces"] == pytest.approx(8e-3 / math.sqrt(2))
+    assert paper["ratio"] == pytest.approx(8 / math.sqrt(2))
+    assert paper["fast_sizes"] == "2000 8000 80000" and paper["fast_default_cd_p2s"] == pytest.approx(0.4e-3)
+    assert rows["torus", "fast start, 1000 seeds + 200 steps"]["ratio"] == pytest.approx(4.0)
+    assert rows["plant", "paper preset"]["ratio"] is None
+    write_reports(path, tmp_path / "rep", renders=False)
+    table2 = list(csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv")))
+    assert sorted(r["method"] for r in table2) == ["dmesh", "dmesh [preset=paper]", "dmesh [preset=paper]"]
+    text = (tmp_path / "rep" / "recipes_size.md").read_text()
+    assert "| paper preset | closed | 1 | 5.66 |" in text and (tmp_path / "rep" / "figures" / "recipes_size.png").is_file()
 
 
 def test_text_fields_show_empty_for_missing_values():

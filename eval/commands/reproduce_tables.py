@@ -1,7 +1,8 @@
 """`dmesh reproduce-tables`: run the paper-style sweeps and write `reports/`.
 
-By default two sweeps run into one store: `eval/sweeps/paper.yaml` (Table 2: point cloud and multi-view
-reconstruction by class) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh). Methods a sweep file names
+By default three sweeps run into one store: `eval/sweeps/paper.yaml` (Table 2: point cloud and multi-view
+reconstruction by class), `eval/sweeps/recipes_size.yaml` (the fast start at the paper preset's mesh sizes:
+`reports/recipes_size.md`) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh). Methods a sweep file names
 that are not registered (yet) are left out with a warning, and a sweep left without runs is skipped; methods
 named by `--methods` must exist. `--inputs` selects among each sweep's own input kinds; the other flags apply
 to every sweep. Resumable: finished runs are read from the store, so a second run with
@@ -18,7 +19,7 @@ NAME = "reproduce-tables"
 HELP = "run the paper-style sweeps and regenerate reports/ (tables, figures, index.html)"
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
-DEFAULT_SWEEPS = [str(SWEEPS / "paper.yaml"), str(SWEEPS / "table1.yaml")]
+DEFAULT_SWEEPS = [str(SWEEPS / name) for name in ("paper.yaml", "recipes_size.yaml", "table1.yaml")]
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +29,7 @@ def add_arguments(p) -> None:
 
     p.add_argument("-o", "--out", default="reports", help="report folder (default: reports)")
     p.add_argument("--sweep", nargs="+", default=DEFAULT_SWEEPS, metavar="YAML",
-                   help="sweep files (default: eval/sweeps/paper.yaml eval/sweeps/table1.yaml)")
+                   help="sweep files (default: eval/sweeps/paper.yaml, recipes_size.yaml and table1.yaml)")
     add_sweep_arguments(p, "runs/paper")
     p.add_argument("--no-renders", action="store_true", help="skip the rendered figures (tables and plots only)")
     p.add_argument("--report-only", action="store_true",

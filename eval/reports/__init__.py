@@ -5,6 +5,7 @@
     table2_pointcloud.md/.csv, table2_multiview.md/.csv   CD and time by closed / open / mixed (paper's Table 2)
     table1.md/.csv                                        RE / FP of mesh-to-DMesh runs (paper's Table 1)
     ablation_weight.md/.csv, ablation_quality.md/.csv     regulariser ablations (paper's Tables 4 and 5)
+    recipes_size.md/.csv, figures/recipes_size.png        the paper preset against the fast start at equal size
     figures/bars_<kind>.png                               per-class bar plots of CD and time
     figures/renders_<kind>_<shape>.png                    GT, input and each method's mesh side by side
     index.html                                            links and shows all of the above
@@ -69,10 +70,11 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         df_all = select_runs(store.dataframe(), keys)
     from eval.reports.ablation import KNOBS, ablation_rows, is_ablation, write_ablations
     from eval.reports.robustness import has_runs, is_robustness, write_robustness
+    from eval.reports.size import is_size_study, write_size
 
-    # Table 2 compares methods at their sweep settings; the regulariser ablations and the runs on corrupted
-    # inputs (robustness sweeps) get their own tables.
-    df = df_all[~is_ablation(df_all) & ~is_robustness(df_all)] if len(df_all) else df_all
+    # Table 2 compares methods at their sweep settings; the regulariser ablations, the DMesh size study and the
+    # runs on corrupted inputs (robustness sweeps) get their own tables.
+    df = df_all[~is_ablation(df_all) & ~is_size_study(df_all) & ~is_robustness(df_all)] if len(df_all) else df_all
     counts = df["status"].value_counts().to_dict() if len(df) else {}
     written: list[Path] = []
     sections: list[tuple[str, str]] = []
@@ -150,6 +152,11 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
                                     ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)],
                                    paper_cols=("paper_cd", "paper_faces")))
     sections.append(("Ablations: weight and quality regularisers (paper Tables 4 and 5)", "\n".join(body)))
+    size_files = write_size(df_all[~is_robustness(df_all)] if len(df_all) else df_all, out)
+    written += size_files
+    body = [f"<p class='links'><a href='{size_files[0].name}'>Markdown</a> <a href='{size_files[1].name}'>CSV</a></p>"]
+    body += [f"<img src='figures/{p.name}' alt='CD against faces'>" for p in size_files[2:]]
+    sections.append(("DMesh's gradient steps at equal mesh size (point clouds)", "\n".join(body)))
     if has_runs(df_all):
         files, body = write_robustness(df_all, out, db, work, renders=renders)
         written += files
