@@ -133,7 +133,7 @@ class SurfaceConfig:
                                # faces (by area) is an open part, not a solid (dmesh.solid.drop_open_regions)
     min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
     max_hole: int = 64         # holes of the closed part with at most this many edges are filled
-    max_crumb: int = 4         # pieces of sheet with at most this many faces (edge-connected) are dropped
+    max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)

@@ -347,9 +347,14 @@ def faces_on_edges(faces: np.ndarray, other: np.ndarray) -> np.ndarray:
 
 
 def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
-    """(F,) bool: faces of the edge-connected pieces (faces joined through any shared edge) that have at most
-    `max_faces` faces: stray triangles of a sheet, which open a hole in no surface but make a closed mesh
-    read as not watertight."""
+    """(F,) bool: the faces of a sheet part made only of crumbs, else none.
+
+    A crumb is an edge-connected piece (faces joined through any shared edge) of at most `max_faces` faces.
+    When every piece of the sheet part is a crumb, the input sampled a closed surface and the crumbs are
+    stray triangles that open a hole in no surface but make the mesh read as not watertight: all are
+    flagged. When some piece is larger, the shape has real sheets and small pieces beside them are often
+    parts of those (a thin leaf that did not join up): none is flagged.
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -362,7 +367,8 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
     same_edge = inverse[order[1:]] == inverse[order[:-1]]  # consecutive half-edges on one edge join faces
     a, b = order[:-1][same_edge] % F, order[1:][same_edge] % F
     _, comp = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(F, F)), directed=False)
-    return np.bincount(comp)[comp] <= max_faces
+    small = np.bincount(comp)[comp] <= max_faces
+    return small if small.all() else np.zeros(F, bool)
 
 
 def drop_crowding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -76,15 +76,18 @@ def test_orientation_is_consistent():
     assert mesh.is_winding_consistent and mesh.volume > 0
 
 
-def test_crumbs_are_the_small_edge_connected_pieces():
-    grid = trimesh.creation.box().faces  # 12 faces, one piece
+def test_crumbs_are_a_sheet_part_made_only_of_small_edge_connected_pieces():
+    sheet = trimesh.creation.box().faces  # 12 faces, one piece: a real sheet
     stray = np.array([[20, 21, 22]])  # a lone triangle
     pair = np.array([[30, 31, 32], [31, 32, 33]])  # two triangles sharing an edge
     touching = np.array([[0, 40, 41]])  # shares only a vertex with the box: a piece of its own
-    faces = np.concatenate([grid, stray, pair, touching])
-    assert repair.crumbs(faces, 2).tolist() == [False] * 12 + [True, True, True, True]
-    assert repair.crumbs(faces, 1).tolist() == [False] * 12 + [True, False, False, True]
-    assert not repair.crumbs(faces, 0).any() and repair.crumbs(faces, 12).all()
+    small = np.concatenate([stray, pair, touching])
+    assert repair.crumbs(small, 2).all()
+    assert not repair.crumbs(small, 1).any()  # the pair is larger than 1 face: a real sheet part
+    # Beside a real sheet, small pieces may be parts of it: none is a crumb.
+    assert not repair.crumbs(np.concatenate([sheet, small]), 2).any()
+    assert repair.crumbs(np.concatenate([sheet, small]), 12).all()
+    assert not repair.crumbs(small, 0).any()
     assert repair.crumbs(np.zeros((0, 3), np.int64), 4).shape == (0,)
 
 
