@@ -36,7 +36,7 @@ class DMeshPointCloud(Method):
 
         from dmesh.recon.pointcloud import reconstruct
 
-        pts, nrm = check_points(inputs, need_normals=cfg.lambda_normal > 0)
+        pts, nrm = check_points(inputs, need_normals=cfg.lambda_normal > 0 or cfg.tangent_weight < 1.0)
         if inputs.seed != cfg.seed:
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
         curve = []

@@ -108,6 +108,7 @@ class PointCloudConfig(Presets):
     real_ramp_steps: int = 100      # phase-1 steps of the linear ramp of the real coefficient
     lambda_quality: float = 1e-3    # quality regulariser (aspect ratio x max edge x Lambda)
     lambda_normal: float = 0.0      # normal term of Eq. 13 (needs input normals)
+    tangent_weight: float = 1.0     # Chamfer offsets' tangential part scaled by this (needs normals; 1: upstream)
     train_phase1: tuple = ("points", "weights", "reals")  # what phase-1 steps move (upstream: all three)
     freeze_phase2: tuple = (0, 250)  # phase-2 steps at which points on the mesh are frozen real
     alpha_wdt: float = 1000.0       # sigmoid sharpness of Lambda_wdt

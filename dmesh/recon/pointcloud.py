@@ -124,9 +124,10 @@ class _Run:
                 positions, reals, carved = carve_far_faces(positions, reals, pts, cfg.carve, cfg.extraction,
                                                            workers=cfg.workers)
             self.dm = dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
-            self.chamfer = ExpectedChamfer(target, target_n if cfg.lambda_normal > 0 else None, k_max=cfg.k_max,
+            uses_normals = cfg.lambda_normal > 0 or cfg.tangent_weight < 1.0
+            self.chamfer = ExpectedChamfer(target, target_n if uses_normals else None, k_max=cfg.k_max,
                                            mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal,
-                                           workers=cfg.workers, impl=cfg.kernels)
+                                           workers=cfg.workers, impl=cfg.kernels, tangent_weight=cfg.tangent_weight)
         self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
         return {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
                 "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": self.loop.fingerprint}
@@ -251,6 +252,8 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     pts_in, nrm_in = check_points(points, normals)
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
+    if cfg.tangent_weight < 1.0 and nrm_in is None:
+        raise ValueError("tangent_weight < 1 needs normals")
     run = _Run(pts_in, nrm_in, cfg, callback, state_path, probe)
     info = run.setup(pts_in)
     phase, start = run.resume(info)

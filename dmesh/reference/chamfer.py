@@ -42,11 +42,23 @@ def expected_min_distance(dist: torch.Tensor, prob: torch.Tensor, face: torch.Te
     return expected, residual
 
 
+def plane_weighted_distance(offset: torch.Tensor, normal: torch.Tensor, tangent_weight: float) -> torch.Tensor:
+    """sqrt((o . n)^2 + w^2 |o - (o . n) n|^2) of offsets o (..., 3) and unit normals n (..., 3): the distance
+    with its tangential part scaled by w = `tangent_weight` (1: Euclidean; 0: point to plane)."""
+    along = (offset * normal).sum(-1)
+    tangential = (offset * offset).sum(-1) - along * along
+    return (along * along + tangent_weight ** 2 * tangential.clamp_min(0.0)).clamp_min(1e-24).sqrt()
+
+
 def _distances(origin: torch.Tensor, others: torch.Tensor, rows: torch.Tensor, origin_normals, other_normals,
-               lambda_normal: float, with_normals: bool) -> torch.Tensor:
+               lambda_normal: float, with_normals: bool, plane_normals=None, tangent_weight: float = 1.0) -> torch.Tensor:
     """(R, K) distance from origin[r] to others[rows[r, k]]; with normals, plus lambda_normal (1 - |n . n'|)
-    of the two points' normals."""
-    d = (origin[:, None, :] - others[rows]).norm(dim=-1)
+    of the two points' normals. With `plane_normals` ((R, K, 3) unit normals of the pairs) and a tangent weight
+    below 1, the tangential part of each offset is scaled by it (`plane_weighted_distance`)."""
+    if plane_normals is not None and tangent_weight < 1.0:
+        d = plane_weighted_distance(origin[:, None, :] - others[rows], plane_normals, tangent_weight)
+    else:
+        d = (origin[:, None, :] - others[rows]).norm(dim=-1)
     if with_normals:
         cos = (origin_normals[:, None, :] * other_normals[rows]).sum(-1).abs()
         d = d + lambda_normal * (1.0 - cos)
@@ -55,7 +67,7 @@ def _distances(origin: torch.Tensor, others: torch.Tensor, rows: torch.Tensor, o
 
 def target_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, face: torch.Tensor,
                 knn: torch.Tensor, target_normals: torch.Tensor | None = None,
-                normals: torch.Tensor | None = None, lambda_normal: float = 0.0):
+                normals: torch.Tensor | None = None, lambda_normal: float = 0.0, tangent_weight: float = 1.0):
     """Target -> ours: each target point's expected distance to its first existing candidate.
 
     Args:
@@ -64,13 +76,16 @@ def target_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, 
             distance.
         target_normals, normals: (G, 3) and (S, 3) unit normals, used when lambda_normal > 0: distances
             become d + lambda_normal (1 - |n . n'|) and each row is re-sorted by them.
+        tangent_weight: below 1 (needs target_normals), the tangential part of each offset, relative to the
+            target point's normal, is scaled by it (`plane_weighted_distance`) and each row is re-sorted.
     Returns:
         expected: (G,) float64, differentiable in points, prob (and normals).
         residual: (G,) float64 (detached), the probability mass beyond the K candidates.
     """
     with_normals = lambda_normal > 0 and normals is not None
-    d = _distances(target, points, knn, target_normals, normals, lambda_normal, with_normals)
-    if with_normals:
+    plane = target_normals[:, None, :].expand(-1, knn.shape[1], -1) if tangent_weight < 1.0 else None
+    d = _distances(target, points, knn, target_normals, normals, lambda_normal, with_normals, plane, tangent_weight)
+    if with_normals or plane is not None:
         order = torch.argsort(d.detach(), dim=1)
         d, knn = torch.gather(d, 1, order), torch.gather(knn, 1, order)
     return expected_min_distance(d, prob[knn], face[knn])
@@ -78,17 +93,20 @@ def target_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, 
 
 def sample_term(points: torch.Tensor, prob: torch.Tensor, target: torch.Tensor, nearest: torch.Tensor,
                 normals: torch.Tensor | None = None, target_normals: torch.Tensor | None = None,
-                lambda_normal: float = 0.0) -> torch.Tensor:
+                lambda_normal: float = 0.0, tangent_weight: float = 1.0) -> torch.Tensor:
     """Ours -> target: (S,) Lambda times the distance from each sample to its nearest target point.
 
     Args:
         points: (S, 3) float64; prob: (S,) float64; target: (G, 3) float64; nearest: (S, J) int64 target ids
             near each sample (J = 1 without the normal term; with it, the minimum over the J of
             d + lambda_normal (1 - |n . n'|)); normals, target_normals: (S, 3), (G, 3) or None.
+        tangent_weight: below 1 (needs target_normals), the tangential part of each offset, relative to the
+            target point's normal, is scaled by it; the minimum is then over the J targets.
     """
+    plane = target_normals[nearest] if tangent_weight < 1.0 else None
     e = _distances(points, target, nearest, normals, target_normals, lambda_normal,
-                   lambda_normal > 0 and normals is not None)
+                   lambda_normal > 0 and normals is not None, plane, tangent_weight)
     return prob * e.min(dim=1).values
 
 
-__all__ = ["first_occurrence", "expected_min_distance", "target_term", "sample_term"]
+__all__ = ["first_occurrence", "expected_min_distance", "plane_weighted_distance", "target_term", "sample_term"]
