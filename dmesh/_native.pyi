@@ -112,18 +112,23 @@ def tet_render_backward(opacity: _F32, frag_face: _I32, frag_diffuse: _F32, frag
 # ------------------------------------------------------------------------- expected Chamfer (bind_chamfer)
 @overload
 def expected_chamfer_forward(target: _F64, points: _F64, prob: _F64, face: _I32, knn: _I32,
-                             num_threads: int) -> tuple[_F64, _F64]: ...
+                             num_threads: int, target_normals: _F64 | None = None,
+                             tangent_weight: float = 1.0) -> tuple[_F64, _F64]: ...
 @overload
 def expected_chamfer_forward(target: _F32, points: _F32, prob: _F32, face: _I32, knn: _I32,
-                             num_threads: int) -> tuple[_F64, _F64]:
-    """(expected (G,), residual (G,)); target, points and prob all float32 or all float64."""
+                             num_threads: int, target_normals: _F64 | None = None,
+                             tangent_weight: float = 1.0) -> tuple[_F64, _F64]:
+    """(expected (G,), residual (G,)); target, points and prob all float32 or all float64; target normals
+    (G, 3) with a tangent weight below 1: tangent-weighted distances, rows sorted by them."""
 
 @overload
 def expected_chamfer_backward(target: _F64, points: _F64, prob: _F64, face: _I32, knn: _I32, grad_expected: _F64,
-                              num_threads: int) -> tuple[_F64, _F64]: ...
+                              num_threads: int, target_normals: _F64 | None = None,
+                              tangent_weight: float = 1.0) -> tuple[_F64, _F64]: ...
 @overload
 def expected_chamfer_backward(target: _F32, points: _F32, prob: _F32, face: _I32, knn: _I32, grad_expected: _F64,
-                              num_threads: int) -> tuple[_F32, _F32]:
+                              num_threads: int, target_normals: _F64 | None = None,
+                              tangent_weight: float = 1.0) -> tuple[_F32, _F32]:
     """(grad_points (S, 3), grad_prob (S,)) in the inputs' float type."""
 
 @overload

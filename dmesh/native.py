@@ -315,23 +315,42 @@ def _chamfer_inputs(fn: str, target, points, prob, face, knn, dtype) -> tuple:
     return t, p, pr, f, k
 
 
-def expected_chamfer_forward(target, points, prob, face, knn, num_threads: int = 0,
-                             dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+def _plane_inputs(fn: str, target_normals, tangent_weight: float, G: int):
+    """(normals (G, 3) float64 or None, weight) for the kernel; None when the weight is 1 or there are none."""
+    w = float(tangent_weight)
+    if not 0.0 <= w <= 1.0:
+        raise ValueError(f"{fn}: tangent_weight must be in [0, 1], got {tangent_weight}")
+    if target_normals is None or w == 1.0:
+        return None, 1.0
+    n = np.ascontiguousarray(_as_array(target_normals), dtype=np.float64)
+    if n.shape != (G, 3):
+        raise ValueError(f"{fn}: target_normals must have shape ({G}, 3) like target, got {n.shape}")
+    return n, w
+
+
+def expected_chamfer_forward(target, points, prob, face, knn, num_threads: int = 0, dtype=np.float64,
+                             target_normals=None, tangent_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Expected nearest distance per target row (native/src/expected_chamfer.h).
 
     Args:
         target: (G, 3); points: (S, 3); prob: (S,) floats, converted to `dtype` (float64 or float32).
         face: (S,) ints >= 0, face id of each sample; knn: (G, K) ints in [0, S), each row's sample ids sorted
             by distance. num_threads: OpenMP threads (0: the OpenMP default).
+        target_normals: (G, 3) unit normals, or None; with a tangent_weight w below 1 the distances are
+            sqrt(a^2 + w^2 (|o|^2 - a^2)) of the offset o and its normal part a, and each row is taken in
+            increasing distance (not upstream; `dmesh.reference.chamfer.plane_weighted_distance`).
     Returns:
         (expected (G,) float64, residual (G,) float64).
     """
-    return _native.expected_chamfer_forward(*_chamfer_inputs("expected_chamfer_forward", target, points, prob,
-                                                             face, knn, dtype), int(num_threads))
+    fn = "expected_chamfer_forward"
+    t, p, pr, f, k = _chamfer_inputs(fn, target, points, prob, face, knn, dtype)
+    n, w = _plane_inputs(fn, target_normals, tangent_weight, len(t))
+    return _native.expected_chamfer_forward(t, p, pr, f, k, int(num_threads), n, w)
 
 
 def expected_chamfer_backward(target, points, prob, face, knn, grad_expected, num_threads: int = 0,
-                              dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+                              dtype=np.float64, target_normals=None,
+                              tangent_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Gradients of sum_g grad_expected[g] * expected[g] for the forward's inputs.
 
     Args: as `expected_chamfer_forward`, plus grad_expected: (G,) floats.
@@ -343,7 +362,8 @@ def expected_chamfer_backward(target, points, prob, face, knn, grad_expected, nu
     w = np.ascontiguousarray(_as_array(grad_expected), dtype=np.float64)
     if w.shape != (len(t),):
         raise ValueError(f"{fn}: grad_expected must have shape ({len(t)},) like target, got {w.shape}")
-    return _native.expected_chamfer_backward(t, p, pr, f, k, w, int(num_threads))
+    n, tw = _plane_inputs(fn, target_normals, tangent_weight, len(t))
+    return _native.expected_chamfer_backward(t, p, pr, f, k, w, int(num_threads), n, tw)
 
 
 def knn_search(data, queries, k: int, num_threads: int = 0, dtype=np.float64) -> np.ndarray:

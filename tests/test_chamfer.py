@@ -377,3 +377,37 @@ def test_tangent_weight_scales_the_tangential_part_and_lowers_the_floor():
         losses.append(loss.item())
     assert losses[0] > losses[1] > losses[2] > 0
     assert 0.015 < losses[2] < 0.02  # point to plane: the 0.01 offset, both ways, is left; not the spacing
+
+
+@pytest.mark.parametrize("weight", [0.3, 0.0])
+def test_native_tangent_weighted_kernel_matches_the_torch_reference_on_any_thread_count(weight):
+    rng = np.random.default_rng(3)
+    G, S, K = 300, 400, 12
+    target = rng.normal(size=(G, 3))
+    normals = rng.normal(size=(G, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    pts = torch.from_numpy(rng.normal(size=(S, 3)))
+    prob = torch.from_numpy(rng.uniform(0.1, 1.0, S))
+    face = torch.from_numpy(rng.integers(0, 250, S))  # repeated faces: first-occurrence masking
+    knn = cKDTree(pts.numpy()).query(target, K)[1]
+    x = pts.clone().requires_grad_(True)
+    p = prob.clone().requires_grad_(True)
+    expected, _ = target_term(torch.from_numpy(target), x, p, face, torch.from_numpy(knn),
+                              torch.from_numpy(normals), None, 0.0, weight)
+    expected.sum().backward()
+    runs = []
+    for threads in (1, 2):
+        xn = pts.clone().requires_grad_(True)
+        pn = prob.clone().requires_grad_(True)
+        e, _ = expected_distance(target, xn, pn, face, knn, num_threads=threads, target_normals=normals,
+                                 tangent_weight=weight)
+        e.sum().backward()
+        assert_close(e, expected.detach(), rtol=1e-12, atol=1e-14, what="expected")
+        assert_close(xn.grad, x.grad, atol=1e-12, what="grad points")
+        assert_close(pn.grad, p.grad, atol=1e-12, what="grad prob")
+        runs.append((e.detach().numpy().tobytes(), xn.grad.numpy().tobytes(), pn.grad.numpy().tobytes()))
+    assert runs[0] == runs[1]
+    with pytest.raises(ValueError, match="tangent_weight"):
+        expected_distance(target, pts, prob, face, knn, target_normals=normals, tangent_weight=-0.1)
+    with pytest.raises(ValueError, match="target_normals"):
+        expected_distance(target, pts, prob, face, knn, target_normals=normals[:5], tangent_weight=0.5)

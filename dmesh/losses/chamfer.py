@@ -135,9 +135,9 @@ class _ExpectedDistance(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, points, prob, target, face, knn, settings):
-        # settings = (dtype: np.float64 or np.float32, num_threads)
+        # settings = (dtype: np.float64 or np.float32, num_threads, target normals (G, 3) or None, tangent weight)
         expected, residual = native.expected_chamfer_forward(target, points, prob, face, knn, settings[1],
-                                                             settings[0])
+                                                             settings[0], settings[2], settings[3])
         ctx.settings = settings
         ctx.save_for_backward(points, prob, target, face, knn)
         residual = torch.from_numpy(residual)
@@ -151,7 +151,7 @@ class _ExpectedDistance(torch.autograd.Function):
         if g_expected is None:
             g_expected = torch.zeros(len(target), dtype=torch.float64)
         gp, gq = native.expected_chamfer_backward(target, points, prob, face, knn, g_expected.double(),
-                                                  ctx.settings[1], ctx.settings[0])
+                                                  ctx.settings[1], ctx.settings[0], ctx.settings[2], ctx.settings[3])
         grad_points = torch.from_numpy(gp).to(points.dtype) if ctx.needs_input_grad[0] else None
         grad_prob = torch.from_numpy(gq).to(prob.dtype) if ctx.needs_input_grad[1] else None
         # one gradient per forward input: points, prob, target, face, knn, settings
@@ -159,7 +159,8 @@ class _ExpectedDistance(torch.autograd.Function):
 
 
 def expected_distance(target, points: torch.Tensor, prob: torch.Tensor, face, knn, *,
-                      dtype: torch.dtype = torch.float64, num_threads: int | None = None):
+                      dtype: torch.dtype = torch.float64, num_threads: int | None = None,
+                      target_normals=None, tangent_weight: float = 1.0):
     """Native `expected_min_distance` of kNN rows: what `target_term` of `dmesh.reference.chamfer` computes
     without the normal term, with an analytic backward (native/src/expected_chamfer.h).
 
@@ -172,6 +173,8 @@ def expected_distance(target, points: torch.Tensor, prob: torch.Tensor, face, kn
         dtype: torch.float64, or torch.float32 to run the kernel on float32 geometry (row sums in float64 either
             way; gradients come back in the inputs' dtype).
         num_threads: OpenMP threads (default torch.get_num_threads()); results do not depend on it.
+        target_normals, tangent_weight: (G, 3) unit normals and a weight below 1: tangent-weighted distances
+            (`ExpectedChamfer.tangent_weight`), each row taken in increasing distance.
     Returns:
         expected: (G,) float64 sum_i d_i P_i prod_{j<i} (1 - P_j), P zeroed for repeated faces.
         residual: (G,) float64 prod_i (1 - P_i) (not differentiable).
@@ -192,8 +195,11 @@ def expected_distance(target, points: torch.Tensor, prob: torch.Tensor, face, kn
         return (a if d is None else a.to(d)).contiguous()
 
     np_dtype = np.float64 if dtype == torch.float64 else np.float32
+    normals = None if target_normals is None else np.ascontiguousarray(
+        target_normals.detach().numpy() if isinstance(target_normals, torch.Tensor) else target_normals, np.float64)
     return _ExpectedDistance.apply(points, prob, as_t(target, torch.float64), as_t(face, None),
-                                   as_t(knn, torch.int32), (np_dtype, _threads(num_threads)))
+                                   as_t(knn, torch.int32), (np_dtype, _threads(num_threads), normals,
+                                                            float(tangent_weight)))
 
 
 @dataclass
@@ -206,7 +212,7 @@ class ExpectedChamfer:
         lambda_normal: weight of the normal term (Eq. 13); 0 disables it.
         tangent_weight: 1 (the paper): Euclidean distances; below 1 (needs target normals; not upstream): the
             tangential part of each offset, relative to the target point's normal, is scaled by it, which lowers
-            the loss's sampling floor (`python -m eval.bench loss_floor`); runs the torch path.
+            the loss's sampling floor (`python -m eval.bench loss_floor`).
         k_normal: target neighbours searched per sample when the normal term is on.
         workers: threads of the k-d tree queries and of the native kernel.
         impl: "native" (kNN search and kernel in C++) or "reference" (torch and cKDTree); module docstring.
@@ -272,9 +278,11 @@ class ExpectedChamfer:
         sp = samples.points.detach().numpy()
         k = min(self.k, s)
         knn = self._knn(sp, k)
-        if self.impl == "native" and not use_normals and tw >= 1.0:
+        if self.impl == "native" and not use_normals:
             expected, residual = expected_distance(self._target_t, samples.points, samples.prob, samples.face,
-                                                   knn, num_threads=self.workers)
+                                                   knn, num_threads=self.workers,
+                                                   target_normals=self._normals_t if tw < 1.0 else None,
+                                                   tangent_weight=tw)
         else:
             expected, residual = target_term(self._target_t, samples.points, samples.prob, samples.face,
                                              torch.from_numpy(knn.astype(np.int64, copy=False)),

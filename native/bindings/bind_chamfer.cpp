@@ -1,6 +1,8 @@
 // Bindings of the expected Chamfer kernel and its kNN search (expected_chamfer.h), for float32 and float64.
 #include <nanobind/nanobind.h>
+#include <nanobind/stl/optional.h>
 
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -35,48 +37,69 @@ Shapes check_inputs(const char* fn, const In<T>& target, const In<T>& points, co
   return {index_t(G), index_t(S), index_t(knn.shape(1))};
 }
 
+// The kernel settings; target normals must be (G, 3) like target, the tangent weight in [0, 1].
+ExpectedChamferSettings chamfer_settings(const char* fn, const Shapes& n, int num_threads,
+                                         const std::optional<In<double>>& target_normals, double tangent_weight) {
+  ExpectedChamferSettings settings{num_threads};
+  if (!(tangent_weight >= 0.0 && tangent_weight <= 1.0)) {
+    throw std::invalid_argument(std::string(fn) + ": tangent_weight must be in [0, 1], got " +
+                                std::to_string(tangent_weight));
+  }
+  if (target_normals) {
+    require(fn, "target_normals", *target_normals, long(n.G), 3);
+    settings.target_normals = target_normals->data();
+    settings.tangent_weight = tangent_weight;
+  }
+  return settings;
+}
+
 template <class T>
 void bind_typed(nb::module_& m) {
   m.def(
       "expected_chamfer_forward",
-      [](In<T> target, In<T> points, In<T> prob, In<index_t> face, In<index_t> knn, int num_threads) {
-        const Shapes n = check_inputs("expected_chamfer_forward", target, points, prob, face, knn);
+      [](In<T> target, In<T> points, In<T> prob, In<index_t> face, In<index_t> knn, int num_threads,
+         std::optional<In<double>> target_normals, double tangent_weight) {
+        const char* fn = "expected_chamfer_forward";
+        const Shapes n = check_inputs(fn, target, points, prob, face, knn);
+        const ExpectedChamferSettings settings = chamfer_settings(fn, n, num_threads, target_normals, tangent_weight);
         ExpectedChamferResult r;
         {
           nb::gil_scoped_release release;
           r = expected_chamfer_forward<T>(target.data(), n.G, points.data(), prob.data(), face.data(), n.S,
-                                          knn.data(), n.K, ExpectedChamferSettings{num_threads});
+                                          knn.data(), n.K, settings);
         }
         return nb::make_tuple(to_numpy(std::move(r.expected), {size_t(n.G)}),
                               to_numpy(std::move(r.residual), {size_t(n.G)}));
       },
       nb::arg("target").noconvert(), nb::arg("points").noconvert(), nb::arg("prob").noconvert(),
       nb::arg("face").noconvert(), nb::arg("knn").noconvert(), nb::arg("num_threads"),
+      nb::arg("target_normals").noconvert() = nb::none(), nb::arg("tangent_weight") = 1.0,
       "expected_chamfer_forward(target (G,3), points (S,3), prob (S,) all f32 or all f64, face (S,) i32,\n"
-      "                         knn (G,K) i32, num_threads) -> (expected (G,) f64, residual (G,) f64)\n\n"
+      "                         knn (G,K) i32, num_threads, target_normals (G,3) f64 or None,\n"
+      "                         tangent_weight) -> (expected (G,) f64, residual (G,) f64)\n\n"
       "Per target row: the expected distance to its first existing candidate, knn sorted by distance,\n"
-      "one sample per face (model in native/src/expected_chamfer.h).");
+      "one sample per face; with target normals, tangent-weighted distances (native/src/expected_chamfer.h).");
 
   m.def(
       "expected_chamfer_backward",
       [](In<T> target, In<T> points, In<T> prob, In<index_t> face, In<index_t> knn, In<double> grad_expected,
-         int num_threads) {
+         int num_threads, std::optional<In<double>> target_normals, double tangent_weight) {
         const char* fn = "expected_chamfer_backward";
         const Shapes n = check_inputs(fn, target, points, prob, face, knn);
         require(fn, "grad_expected", grad_expected, n.G, -1);
+        const ExpectedChamferSettings settings = chamfer_settings(fn, n, num_threads, target_normals, tangent_weight);
         ExpectedChamferGrad<T> g;
         {
           nb::gil_scoped_release release;
           g = expected_chamfer_backward<T>(target.data(), n.G, points.data(), prob.data(), face.data(), n.S,
-                                           knn.data(), n.K, grad_expected.data(),
-                                           ExpectedChamferSettings{num_threads});
+                                           knn.data(), n.K, grad_expected.data(), settings);
         }
         return nb::make_tuple(to_numpy(std::move(g.grad_points), {size_t(n.S), 3}),
                               to_numpy(std::move(g.grad_prob), {size_t(n.S)}));
       },
       nb::arg("target").noconvert(), nb::arg("points").noconvert(), nb::arg("prob").noconvert(),
       nb::arg("face").noconvert(), nb::arg("knn").noconvert(), nb::arg("grad_expected").noconvert(),
-      nb::arg("num_threads"),
+      nb::arg("num_threads"), nb::arg("target_normals").noconvert() = nb::none(), nb::arg("tangent_weight") = 1.0,
       "expected_chamfer_backward(<forward inputs>, grad_expected (G,) f64, num_threads)\n"
       "  -> (grad_points (S,3), grad_prob (S,)) in the inputs' float type\n\n"
       "Gradients of sum_g grad_expected[g] * expected[g]; byte-identical on any thread count.");

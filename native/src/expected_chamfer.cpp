@@ -6,6 +6,7 @@
 #include <cstring>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 #ifdef _OPENMP
 #include <omp.h>
@@ -85,12 +86,58 @@ FaceIds dense_face_ids(const char* fn, const index_t* face, index_t S) {
   return r;
 }
 
-template <class A, class B>
-inline double distance(const A* a, const B* b) {
-  const double dx = double(a[0]) - double(b[0]), dy = double(a[1]) - double(b[1]),
-               dz = double(a[2]) - double(b[2]);
-  return std::sqrt(dx * dx + dy * dy + dz * dz);
-}
+// The candidates of one target row in the order the row is taken, with their distances (header: the
+// tangent-weighted distance when the settings carry target normals; then the row is sorted by it).
+struct RowDistances {
+  const double* normals;  // null: Euclidean, in knn order
+  double w2;              // tangent_weight^2
+  std::vector<index_t> order;
+  std::vector<double> dist, along, dist_in, along_in;  // *_in: in knn order, before the sort
+  std::vector<std::pair<double, index_t>> key;
+
+  RowDistances(const ExpectedChamferSettings& settings, index_t K)
+      : normals(settings.target_normals),
+        w2(settings.tangent_weight * settings.tangent_weight),
+        order(static_cast<size_t>(K)),
+        dist(static_cast<size_t>(K)),
+        along(static_cast<size_t>(K)),
+        dist_in(static_cast<size_t>(K)),
+        along_in(static_cast<size_t>(K)),
+        key(static_cast<size_t>(K)) {}
+
+  // Fills order / dist / along (by position in the row's order) for row g; false on a bad sample id.
+  template <class T, class P>
+  bool compute(index_t g, const T* t, const index_t* row, index_t K, index_t S, const P* points, size_t stride) {
+    const double* n = normals ? normals + 3 * size_t(g) : nullptr;
+    for (index_t i = 0; i < K; ++i) {
+      const index_t s = row[i];
+      if (s < 0 || s >= S) return false;
+      const P* x = points + stride * size_t(s);
+      const double o[3] = {double(x[0]) - double(t[0]), double(x[1]) - double(t[1]), double(x[2]) - double(t[2])};
+      const double oo = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
+      order[size_t(i)] = i;
+      if (n == nullptr) {
+        dist[size_t(i)] = std::sqrt(oo);
+        along[size_t(i)] = 0.0;
+      } else {
+        const double a = o[0] * n[0] + o[1] * n[1] + o[2] * n[2];
+        dist_in[size_t(i)] = std::sqrt(std::max(a * a + w2 * std::max(oo - a * a, 0.0), 0.0));
+        along_in[size_t(i)] = a;
+        key[size_t(i)] = {dist_in[size_t(i)], i};
+      }
+    }
+    if (n != nullptr) {  // take the row in increasing weighted distance, ties in knn order
+      std::sort(key.begin(), key.begin() + K);
+      for (index_t i = 0; i < K; ++i) {
+        const index_t j = key[size_t(i)].second;
+        order[size_t(i)] = j;
+        dist[size_t(i)] = dist_in[size_t(j)];
+        along[size_t(i)] = along_in[size_t(j)];
+      }
+    }
+    return true;
+  }
+};
 
 [[noreturn]] void bad_knn(const char* fn, index_t S) {
   throw std::invalid_argument(std::string(fn) + ": knn holds a sample id outside [0, " + std::to_string(S) +
@@ -154,21 +201,22 @@ ExpectedChamferResult expected_chamfer_forward(const T* target, index_t G, const
   {
     // stamp[f] == g: face f already appeared in row g (rows are unique, so no reset is needed).
     std::vector<index_t> stamp(size_t(fid.count), kNone);
+    RowDistances rd(settings, K);
 #pragma omp for schedule(dynamic, 256)
     for (index_t g = 0; g < G; ++g) {
       const index_t* row = knn + size_t(g) * size_t(K);
       const T* t = target + 3 * size_t(g);
       double before = 1.0, e = 0.0;
+      if (!rd.compute(g, t, row, K, S, points, 3)) {
+        bad.store(true, std::memory_order_relaxed);
+        continue;
+      }
       for (index_t i = 0; i < K; ++i) {
-        const index_t s = row[i];
-        if (s < 0 || s >= S) {
-          bad.store(true, std::memory_order_relaxed);
-          break;
-        }
+        const index_t s = row[rd.order[size_t(i)]];
         index_t& seen = stamp[size_t(fids[s])];
         if (seen == g) continue;  // masked: p = 0, contributes nothing and leaves B unchanged
         seen = g;
-        const double d = distance(t, points + 3 * size_t(s));
+        const double d = rd.dist[size_t(i)];
         const double p = double(prob[s]);
         e += d * p * before;
         before *= 1.0 - p;
@@ -211,6 +259,7 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
     std::vector<double> dist(static_cast<size_t>(K)), p(static_cast<size_t>(K)), before(static_cast<size_t>(K)),
         coef(static_cast<size_t>(K)), dprob(static_cast<size_t>(K));
     std::vector<char> masked(static_cast<size_t>(K));
+    RowDistances rd(settings, K);
     for (index_t g = 0; g < G; ++g) {
       const index_t* row = knn + size_t(g) * size_t(K);
       // Skip rows with none of this thread's samples. A row found to be ours is checked in full below.
@@ -228,26 +277,21 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
       // Forward again: distances, masks and B_i.
       const T* t = target + 3 * size_t(g);
       double b = 1.0;
-      bool valid = true;
+      if (!rd.compute(g, t, row, K, S, pack.data(), 8)) {
+        bad.store(true, std::memory_order_relaxed);
+        continue;
+      }
       for (index_t i = 0; i < K; ++i) {
-        const index_t s = row[i];
-        if (s < 0 || s >= S) {
-          valid = false;
-          break;
-        }
+        const index_t s = row[rd.order[size_t(i)]];
         index_t& seen = stamp[size_t(fids[s])];
         masked[size_t(i)] = seen == g;
         before[size_t(i)] = b;
         if (masked[size_t(i)]) continue;
         seen = g;
         const double* xs = pack.data() + 8 * size_t(s);
-        dist[size_t(i)] = distance(t, xs);
+        dist[size_t(i)] = rd.dist[size_t(i)];
         p[size_t(i)] = xs[3];
         b *= 1.0 - p[size_t(i)];
-      }
-      if (!valid) {
-        bad.store(true, std::memory_order_relaxed);
-        continue;
       }
       // Backward through the suffix recursion (tail = T_{i+1}).
       const double w = grad_expected[g];
@@ -259,13 +303,19 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
         dprob[size_t(i)] = w * bi * (d - tail);
         tail = pi * d + (1.0 - pi) * tail;
       }
-      // This thread's samples, in candidate order.
+      // This thread's samples, in candidate order. dd/dx = o / d, or ((1 - w^2) a n + w^2 o) / d (header).
+      const double* n = rd.normals ? rd.normals + 3 * size_t(g) : nullptr;
       for (index_t i = 0; i < K; ++i) {
-        const index_t s = row[i];
+        const index_t s = row[rd.order[size_t(i)]];
         if (masked[size_t(i)] || !owned(s)) continue;
         double* x = pack.data() + 8 * size_t(s);
         double* a = x + 4;
-        for (int k = 0; k < 3; ++k) a[k] += coef[size_t(i)] * (x[k] - double(t[k]));
+        if (n == nullptr) {
+          for (int k = 0; k < 3; ++k) a[k] += coef[size_t(i)] * (x[k] - double(t[k]));
+        } else {
+          const double c_along = coef[size_t(i)] * (1.0 - rd.w2) * rd.along[size_t(i)], c_off = coef[size_t(i)] * rd.w2;
+          for (int k = 0; k < 3; ++k) a[k] += c_along * n[k] + c_off * (x[k] - double(t[k]));
+        }
         a[3] += dprob[size_t(i)];
       }
     }

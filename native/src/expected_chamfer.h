@@ -36,8 +36,14 @@
 
 namespace dmesh {
 
+// With target normals n_g (unit, (G, 3) double) and a tangent weight w in [0, 1), the distance of candidate i
+// is d_i = sqrt(a^2 + w^2 (|o|^2 - a^2)), o = x_s - t_g, a = o . n_g (the tangential part of the offset
+// scaled by w; w = 1 is |o|), and each row is taken in increasing d_i (ties: knn order) rather than as given;
+// dd_i/dx_s = ((1 - w^2) a n_g + w^2 o) / d_i. Not upstream: it lowers the loss's sampling floor.
 struct ExpectedChamferSettings {
-  int num_threads = 0;  // 0: the OpenMP default (OMP_NUM_THREADS or the hardware)
+  int num_threads = 0;                    // 0: the OpenMP default (OMP_NUM_THREADS or the hardware)
+  const double* target_normals = nullptr;  // (G, 3) unit normals, or null: Euclidean distances
+  double tangent_weight = 1.0;            // w, used with target_normals
 };
 
 struct ExpectedChamferResult {
