@@ -204,7 +204,8 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
         # 4K faces and the fast start + steps at 2K; a plant with a paper run only (no size curve).
         for i, (label, faces, cd) in enumerate([("num_init=1000", 2000, 8e-3), ("num_init=4000", 8000, 4e-3),
                                                 ("", 80000, 0.4e-3), ("preset=paper", 4000, 1e-3),
-                                                ("num_init=1000,steps_phase1=200", 2000, 2e-3)]):
+                                                ("num_init=1000,steps_phase1=200", 2000, 2e-3),
+                                                ("num_init=1000,steps_phase1=200,tangent_weight=0.2", 2000, 1e-3)]):
             r = _row(f"t{i}", "dmesh", "torus", "closed", "done", metrics={"cd_p2s": cd, "cd_l1": cd, "faces": faces},
                      time_s=100.0 if label == "preset=paper" else 10.0)
             r.update(config_label=label)
@@ -217,7 +218,9 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
     assert interpolate([(2000, 8e-3), (8000, 4e-3)], 1000) is None
     rows = {(r["shape"], r["recipe"]): r for r in size_rows(df)}
     assert sorted(rows) == [("plant", "paper preset"), ("torus", "fast start, 1000 seeds + 200 steps"),
+                            ("torus", "fast start, 1000 seeds + 200 steps, tangent weight 0.2"),
                             ("torus", "paper preset")]
+    assert rows["torus", "fast start, 1000 seeds + 200 steps, tangent weight 0.2"]["ratio"] == pytest.approx(8.0)
     paper = rows["torus", "paper preset"]
     assert paper["fast_cd_p2s_at_faces"] == pytest.approx(8e-3 / math.sqrt(2))
     assert paper["ratio"] == pytest.approx(8 / math.sqrt(2))

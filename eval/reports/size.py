@@ -24,8 +24,8 @@ from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
 
 CLASSES = ("closed", "open", "mixed")
 SIZE_LABEL = re.compile(r"^num_init=\d+$")
-STEPS_LABEL = re.compile(r"^num_init=(\d+),steps_phase1=(\d+)$")
-PAPER_LABEL = "preset=paper"
+STEPS_LABEL = re.compile(r"^num_init=(\d+),steps_phase1=(\d+)(?:,tangent_weight=([0-9.e-]+))?$")
+PAPER_LABEL = re.compile(r"^preset=paper(?:,tangent_weight=([0-9.e-]+))?$")
 CSV_COLUMNS = ["shape", "category", "recipe", "faces", "cd_p2s", "time_s", "fast_cd_p2s_at_faces", "ratio",
                "fast_sizes", "fast_default_faces", "fast_default_cd_p2s", "fast_default_time_s"]
 
@@ -39,11 +39,16 @@ def is_size_study(df):
 
 
 def _recipe(label: str) -> str | None:
-    """The recipe of a run with gradient steps ("paper preset", "fast start, 2500 seeds + 200 steps"), or None."""
-    if label == PAPER_LABEL:
-        return "paper preset"
-    m = STEPS_LABEL.match(label)
-    return f"fast start, {m.group(1)} seeds + {m.group(2)} steps" if m else None
+    """The recipe of a run with gradient steps ("paper preset", "fast start, 2500 seeds + 200 steps", either
+    with ", tangent weight 0.2"), or None."""
+    paper, steps = PAPER_LABEL.match(label), STEPS_LABEL.match(label)
+    if paper:
+        name, weight = "paper preset", paper.group(1)
+    elif steps:
+        name, weight = f"fast start, {steps.group(1)} seeds + {steps.group(2)} steps", steps.group(3)
+    else:
+        return None
+    return name + (f", tangent weight {weight}" if weight else "")
 
 
 def _fast_runs(df):
@@ -98,8 +103,8 @@ def size_rows(df) -> list[dict]:
                      "fast_default_cd_p2s": num(d.get("cd_p2s")) if len(default) else None,
                      "fast_default_time_s": num(d.get("time_s")) if len(default) else None})
     order = {c: i for i, c in enumerate(CLASSES)}
-    return sorted(rows, key=lambda x: (order.get(x["category"], 9), x["shape"], x["recipe"] != "paper preset",
-                                       x["recipe"]))
+    return sorted(rows, key=lambda x: (order.get(x["category"], 9), x["shape"],
+                                       not x["recipe"].startswith("paper preset"), x["recipe"]))
 
 
 def size_plot(df, rows: list[dict], out: Path) -> Path | None:
@@ -123,7 +128,7 @@ def size_plot(df, rows: list[dict], out: Path) -> Path | None:
             ax.plot([f for f, _ in pts], [c * 1e3 for _, c in pts], "-o", ms=3, color=cmap(i % 10),
                     label=f"{shape}: fast start")
             for r in (x for x in rows if x["shape"] == shape):
-                paper = r["recipe"] == "paper preset"
+                paper = r["recipe"].startswith("paper preset")
                 ax.plot([r["faces"]], [r["cd_p2s"] * 1e3], "*" if paper else "^", ms=13 if paper else 8,
                         color=cmap(i % 10), markeredgecolor="k", label=f"{shape}: {r['recipe']}")
         ax.set_xscale("log")
@@ -151,7 +156,7 @@ def size_plot(df, rows: list[dict], out: Path) -> Path | None:
 def _summary(rows: list[dict]) -> list[dict]:
     """Per recipe and class: shapes, and the geometric mean of the ratio (fast start / stepped at equal faces)."""
     out = []
-    for recipe in sorted({r["recipe"] for r in rows}, key=lambda x: (x != "paper preset", x)):
+    for recipe in sorted({r["recipe"] for r in rows}, key=lambda x: (not x.startswith("paper preset"), x)):
         for cls in CLASSES:
             ratios = [r["ratio"] for r in rows if r["recipe"] == recipe and r["category"] == cls and r["ratio"]]
             if ratios:
