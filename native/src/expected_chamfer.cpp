@@ -6,6 +6,7 @@
 #include <cstring>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #ifdef _OPENMP
@@ -86,8 +87,16 @@ FaceIds dense_face_ids(const char* fn, const index_t* face, index_t S) {
   return r;
 }
 
-// The candidates of one target row in the order the row is taken, with their distances (header: the
-// tangent-weighted distance when the settings carry target normals; then the row is sorted by it).
+template <class A, class B>
+inline double distance(const A* a, const B* b) {
+  const double dx = double(a[0]) - double(b[0]), dy = double(a[1]) - double(b[1]),
+               dz = double(a[2]) - double(b[2]);
+  return std::sqrt(dx * dx + dy * dy + dz * dz);
+}
+
+// The candidates of one target row in the order the row is taken, with their tangent-weighted distances
+// (header), when the settings carry target normals; without them the kernels keep their inline Euclidean
+// loop (no extra pass over the row).
 struct RowDistances {
   const double* normals;  // null: Euclidean, in knn order
   double w2;              // tangent_weight^2
@@ -103,7 +112,9 @@ struct RowDistances {
         along(static_cast<size_t>(K)),
         dist_in(static_cast<size_t>(K)),
         along_in(static_cast<size_t>(K)),
-        key(static_cast<size_t>(K)) {}
+        key(static_cast<size_t>(K)) {
+    for (index_t i = 0; i < K; ++i) order[size_t(i)] = i;  // the knn order, kept without normals
+  }
 
   // Fills order / dist / along (by position in the row's order) for row g; false on a bad sample id.
   template <class T, class P>
@@ -115,10 +126,8 @@ struct RowDistances {
       const P* x = points + stride * size_t(s);
       const double o[3] = {double(x[0]) - double(t[0]), double(x[1]) - double(t[1]), double(x[2]) - double(t[2])};
       const double oo = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
-      order[size_t(i)] = i;
       if (n == nullptr) {
         dist[size_t(i)] = std::sqrt(oo);
-        along[size_t(i)] = 0.0;
       } else {
         const double a = o[0] * n[0] + o[1] * n[1] + o[2] * n[2];
         dist_in[size_t(i)] = std::sqrt(std::max(a * a + w2 * std::max(oo - a * a, 0.0), 0.0));
@@ -207,19 +216,31 @@ ExpectedChamferResult expected_chamfer_forward(const T* target, index_t G, const
       const index_t* row = knn + size_t(g) * size_t(K);
       const T* t = target + 3 * size_t(g);
       double before = 1.0, e = 0.0;
-      if (!rd.compute(g, t, row, K, S, points, 3)) {
+      // One loop per distance kind, chosen at compile time: the Euclidean one is the kernel's plain loop.
+      auto walk = [&](auto weighted_tag) {
+        constexpr bool weighted = decltype(weighted_tag)::value;
+        for (index_t i = 0; i < K; ++i) {
+          const index_t s = weighted ? row[rd.order[size_t(i)]] : row[i];
+          if (s < 0 || s >= S) {
+            bad.store(true, std::memory_order_relaxed);
+            break;
+          }
+          index_t& seen = stamp[size_t(fids[s])];
+          if (seen == g) continue;  // masked: p = 0, contributes nothing and leaves B unchanged
+          seen = g;
+          const double d = weighted ? rd.dist[size_t(i)] : distance(t, points + 3 * size_t(s));
+          const double p = double(prob[s]);
+          e += d * p * before;
+          before *= 1.0 - p;
+        }
+      };
+      if (rd.normals == nullptr) {
+        walk(std::false_type{});
+      } else if (rd.compute(g, t, row, K, S, points, 3)) {
+        walk(std::true_type{});
+      } else {
         bad.store(true, std::memory_order_relaxed);
         continue;
-      }
-      for (index_t i = 0; i < K; ++i) {
-        const index_t s = row[rd.order[size_t(i)]];
-        index_t& seen = stamp[size_t(fids[s])];
-        if (seen == g) continue;  // masked: p = 0, contributes nothing and leaves B unchanged
-        seen = g;
-        const double d = rd.dist[size_t(i)];
-        const double p = double(prob[s]);
-        e += d * p * before;
-        before *= 1.0 - p;
       }
       r.expected[size_t(g)] = e;
       r.residual[size_t(g)] = before;
@@ -277,21 +298,31 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
       // Forward again: distances, masks and B_i.
       const T* t = target + 3 * size_t(g);
       double b = 1.0;
-      if (!rd.compute(g, t, row, K, S, pack.data(), 8)) {
+      const bool weighted = rd.normals != nullptr;
+      if (weighted && !rd.compute(g, t, row, K, S, pack.data(), 8)) {
         bad.store(true, std::memory_order_relaxed);
         continue;
       }
+      bool valid = true;
       for (index_t i = 0; i < K; ++i) {
-        const index_t s = row[rd.order[size_t(i)]];
+        const index_t s = weighted ? row[rd.order[size_t(i)]] : row[i];
+        if (s < 0 || s >= S) {
+          valid = false;
+          break;
+        }
         index_t& seen = stamp[size_t(fids[s])];
         masked[size_t(i)] = seen == g;
         before[size_t(i)] = b;
         if (masked[size_t(i)]) continue;
         seen = g;
         const double* xs = pack.data() + 8 * size_t(s);
-        dist[size_t(i)] = rd.dist[size_t(i)];
+        dist[size_t(i)] = weighted ? rd.dist[size_t(i)] : distance(t, xs);
         p[size_t(i)] = xs[3];
         b *= 1.0 - p[size_t(i)];
+      }
+      if (!valid) {
+        bad.store(true, std::memory_order_relaxed);
+        continue;
       }
       // Backward through the suffix recursion (tail = T_{i+1}).
       const double w = grad_expected[g];
@@ -306,7 +337,7 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
       // This thread's samples, in candidate order. dd/dx = o / d, or ((1 - w^2) a n + w^2 o) / d (header).
       const double* n = rd.normals ? rd.normals + 3 * size_t(g) : nullptr;
       for (index_t i = 0; i < K; ++i) {
-        const index_t s = row[rd.order[size_t(i)]];
+        const index_t s = weighted ? row[rd.order[size_t(i)]] : row[i];
         if (masked[size_t(i)] || !owned(s)) continue;
         double* x = pack.data() + 8 * size_t(s);
         double* a = x + 4;
