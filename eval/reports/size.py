@@ -8,7 +8,7 @@ once with phase-1 steps; this report puts each run with gradient steps on that s
     recipes_size.md / .csv        per run with steps: the fast start interpolated to its face count (log-log
                                   between the two nearest sizes), and the ratio of the two CDs
     figures/recipes_size.png      CD p2s against faces, one panel per class: fast sizes (lines), paper preset
-                                  (stars), fast start + steps (triangles)
+                                  (stars), fast start + steps (triangles); with a tangent weight: plus, diamond
 
 Size-study runs are DMesh point-cloud runs whose overrides are `num_init` and optionally `steps_phase1`; they
 are kept out of Table 2.
@@ -128,8 +128,9 @@ def size_plot(df, rows: list[dict], out: Path) -> Path | None:
             ax.plot([f for f, _ in pts], [c * 1e3 for _, c in pts], "-o", ms=3, color=cmap(i % 10),
                     label=f"{shape}: fast start")
             for r in (x for x in rows if x["shape"] == shape):
-                paper = r["recipe"].startswith("paper preset")
-                ax.plot([r["faces"]], [r["cd_p2s"] * 1e3], "*" if paper else "^", ms=13 if paper else 8,
+                paper, weighted = r["recipe"].startswith("paper preset"), "tangent weight" in r["recipe"]
+                marker = ("P" if weighted else "*") if paper else ("D" if weighted else "^")
+                ax.plot([r["faces"]], [r["cd_p2s"] * 1e3], marker, ms=13 if marker == "*" else 8,
                         color=cmap(i % 10), markeredgecolor="k", label=f"{shape}: {r['recipe']}")
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -143,8 +144,9 @@ def size_plot(df, rows: list[dict], out: Path) -> Path | None:
         if ax.lines:
             ax.legend(fontsize=7)
     axes[0].set_ylabel("CD p2s (x1e-3, log)")
-    fig.suptitle("DMesh on point clouds: runs with gradient steps (stars: paper preset; triangles: fast start + "
-                 "steps) against the gradient-free fast start at several seed counts (lines)", fontsize=10)
+    fig.suptitle("DMesh on point clouds: runs with gradient steps (star: paper preset; triangle: fast start + "
+                 "steps; diamond / plus: the same with a tangent weight) against the gradient-free fast start at "
+                 "several seed counts (lines)", fontsize=9)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out) as tmp:
