@@ -234,6 +234,23 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
     assert "| paper preset | closed | 1 | 5.66 |" in text and (tmp_path / "rep" / "figures" / "recipes_size.png").is_file()
 
 
+def test_reports_take_the_latest_finished_run_over_a_rerun_left_running(tmp_path):
+    from eval.reports import select_runs
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        old = _row("old", "psr", "torus", "closed", "done", 1e-3, 7e-3, 2.0)
+        new = _row("new", "psr", "torus", "closed", "done", 2e-3, 8e-3, 2.0)
+        left = _row("left", "psr", "torus", "closed", "running")
+        for r, when in ((old, "2026-01-01T00:00:00"), (new, "2026-01-02T00:00:00"), (left, "2026-01-03T00:00:00")):
+            r["started_at"] = when
+            s.upsert(r)
+        df = s.dataframe()
+    assert select_runs(df)["key"].tolist() == ["new"]
+    only_running = df[df["key"] == "left"]
+    assert select_runs(only_running)["key"].tolist() == ["left"]
+
+
 def test_text_fields_show_empty_for_missing_values():
     from eval.reports.tables import text
 

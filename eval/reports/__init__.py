@@ -26,9 +26,10 @@ INPUT_KINDS = ("pointcloud", "multiview")
 
 
 def select_runs(df, keys=None):
-    """The runs a report shows: those with `keys` when given (a sweep's runs), else the latest run of every
-    (method, config, shape, input kind, input settings, seed), so results of older code versions that
-    remain in the store are not averaged in."""
+    """The runs a report shows: those with `keys` when given (a sweep's runs), else the latest finished run
+    (done or failed; else the latest run) of every (method, config, shape, input kind, input settings, seed),
+    so results of older code versions that remain in the store are not averaged in, and a rerun still in
+    progress (or killed) does not hide a finished one."""
     if df is None or not len(df):
         return df
     if keys is not None:
@@ -37,8 +38,10 @@ def select_runs(df, keys=None):
 
     ident = df.apply(lambda r: json.dumps([r["method"], r["config_label"], r["shape"], r["input_kind"],
                                            r["inputs_json"], int(r["seed"])], sort_keys=True, default=str), axis=1)
-    order = df.assign(_ident=ident).sort_values("started_at", na_position="first")
-    return order.drop_duplicates("_ident", keep="last").drop(columns="_ident").sort_index()
+    finished = df["status"].isin(["done", "failed"])
+    order = df.assign(_ident=ident, _finished=finished).sort_values(["_finished", "started_at"],
+                                                                     na_position="first", kind="stable")
+    return order.drop_duplicates("_ident", keep="last").drop(columns=["_ident", "_finished"]).sort_index()
 
 
 def write_reports(db: str | Path, out: str | Path, work: str | Path | None = None, title: str = "DMesh harness report",
