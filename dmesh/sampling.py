@@ -12,11 +12,40 @@ import numpy as np
 from dmesh.solid import face_areas
 
 
-def sample_surface(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
+def vertex_axes(vertices: np.ndarray, faces: np.ndarray, smooth: float = 0.7) -> np.ndarray:
+    """(V, 3) unit normal axis per vertex, whatever the faces' winding; zero rows at creases and corners.
+
+    The axis is the main eigenvector of sum(area n n^T) over the vertex's faces (unit face normals n), so
+    a face wound either way counts the same. Where the main eigenvalue is below `smooth` x the trace (the
+    faces around the vertex do not share one plane) the row is zero.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    twice_area = np.linalg.norm(cross, axis=1)
+    n = cross / np.maximum(twice_area, 1e-300)[:, None]
+    outer = 0.5 * twice_area[:, None, None] * n[:, :, None] * n[:, None, :]
+    m = np.zeros((len(v), 3, 3))
+    for corner in range(3):
+        np.add.at(m, f[:, corner], outer)
+    values, vectors = np.linalg.eigh(m)
+    axis = vectors[:, :, 2].copy()
+    trace = values.sum(1)
+    axis[~(values[:, 2] >= smooth * np.maximum(trace, 1e-300)) | ~(trace > 0)] = 0.0
+    return axis
+
+
+def sample_surface(mesh, n: int, rng: np.random.Generator, phong: float = 0.0) -> np.ndarray:
     """(n, 3) float64 area-uniform random points on a triangle mesh (anything with `vertices`, `faces`).
 
     A mesh of zero area gives (up to n of) its corners instead. Draws from `rng`: one face choice, then u,
     then w, n each.
+
+    phong: 0 samples the flat faces. alpha > 0 moves each sample to Phong tessellation's curved triangle
+    (Boubekeur and Alexa 2008): p' = (1 - alpha) p + alpha sum_i b_i P_i(p), where b are the sample's
+    barycentric weights and P_i projects onto the tangent plane of corner i (`vertex_axes`; a crease corner
+    does not project). A mesh whose vertices lie on a smooth surface cuts its curves short by the sagitta of
+    each face; the curved samples lie about that much closer to the surface. 0.75 is the paper's choice.
     """
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
@@ -29,7 +58,14 @@ def sample_surface(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
     fold = u + w > 1.0
     u[fold], w[fold] = 1.0 - u[fold], 1.0 - w[fold]
     t = tri[pick]
-    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0])
+    p = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0])
+    if not phong:
+        return p
+    axes = vertex_axes(v, f)[f[pick]]  # (n, 3 corners, 3)
+    bary = np.stack([1.0 - u - w, u, w], axis=1)
+    offset = np.einsum("nij,nij->ni", p[:, None, :] - t, axes)  # (p - v_i) . a_i per corner
+    projected = p[:, None, :] - offset[:, :, None] * axes
+    return (1.0 - phong) * p + phong * np.einsum("ni,nij->nj", bary, projected)
 
 
-__all__ = ["sample_surface"]
+__all__ = ["sample_surface", "vertex_axes"]

@@ -259,6 +259,7 @@ class MultiViewConfig(Presets):
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
     voronoi_per_seed: float | None = None  # re-seeds keep <= this many Voronoi vertices per seed (None: all)
+    reseed_phong: float = 0.0        # re-seeds sample the previous mesh's Phong-curved faces (0: flat, upstream)
     voronoi: str = "all"            # re-seeds' imaginary points: "all" Voronoi vertices or the seeds' "poles"
     domain: float = 1.0              # Voronoi vertices outside [-domain, domain]^3 are dropped
     box: float = 1.25                # points stay in [-b, b]^3, b = min(box, 0.98 x the cameras' box)
@@ -270,6 +271,7 @@ class MultiViewConfig(Presets):
     update_bound: float = 3e-4       # later epochs' per-step bound
     max_real_first: float = 3e-3     # epoch 0: upstream's real-value scale (reals' lr and bound: lr / it)
     max_real: float = 3e-3           # later epochs' real-value scale
+    weight_scale: float = 1.0        # weights' lr and bound = the positions' x this (1: upstream)
     views_per_step: int = 16         # random views rendered per step (upstream batch size)
     resolution: int | None = None    # images are area-averaged to this side (None: the capture's)
     lambda_depth: float = 1.0        # weight of the depth channel's L1 (diffuse 1); see `depth_channel`
@@ -318,7 +320,7 @@ class MultiViewConfig(Presets):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("grid_extent", "domain", "box", "lr_first", "bound_first", "lr", "update_bound",
-                     "max_real_first", "max_real", "edge_width", "alpha_wdt", "alpha_real"):
+                     "max_real_first", "max_real", "weight_scale", "edge_width", "alpha_wdt", "alpha_real"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"MultiViewConfig.{name} must be positive, got {getattr(self, name)}")
         for name in ("lambda_depth", "lambda_weight", "lambda_real_start", "lambda_real_end",
@@ -331,6 +333,8 @@ class MultiViewConfig(Presets):
             raise ValueError(f"MultiViewConfig.resolution must be >= 4 or None, got {self.resolution}")
         if self.depth_tolerance is not None and not self.depth_tolerance > 0:
             raise ValueError(f"MultiViewConfig.depth_tolerance must be positive or None, got {self.depth_tolerance}")
+        if not 0.0 <= self.reseed_phong <= 1.0:
+            raise ValueError(f"MultiViewConfig.reseed_phong must be in [0, 1], got {self.reseed_phong}")
         if self.voronoi not in ("all", "poles"):
             raise ValueError(f"MultiViewConfig.voronoi must be 'all' or 'poles', got {self.voronoi!r}")
         if self.init not in INIT_MODES:
@@ -410,8 +414,10 @@ class MultiViewConfig(Presets):
         from dmesh.recon.optim import StepConfig
 
         if epoch == 0:
-            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first)
-        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real)
+            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first,
+                              weight_scale=self.weight_scale)
+        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real,
+                          weight_scale=self.weight_scale)
 
     def total_steps(self) -> int:
         return sum(self.steps_phase1) + sum(self.steps_phase2)

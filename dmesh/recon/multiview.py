@@ -216,7 +216,7 @@ class _Run:
             return DMesh(_grid_points(cfg.grid, cfg.grid_extent, box), None, None, cfg.probability_config())
         n = cfg.refine_seeds[epoch - 1]
         keep = None if cfg.voronoi_per_seed is None else int(math.ceil(cfg.voronoi_per_seed * n))
-        samples = sample_surface(mesh, n, self.rng)
+        samples = sample_surface(mesh, n, self.rng, cfg.reseed_phong)
         pos, reals = seeds_and_voronoi(samples, n, self.rng, min(cfg.domain, box), keep, box, vertices=cfg.voronoi)
         return DMesh(np.clip(pos, -box, box), np.ones(len(pos)), reals, cfg.probability_config())
 
