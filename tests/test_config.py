@@ -70,9 +70,6 @@ def test_multiview_config_validation():
         MultiViewConfig(init="points")
     with pytest.raises(ValueError, match="reseed_phong"):
         MultiViewConfig(reseed_phong=1.5)
-    with pytest.raises(ValueError, match="weight_scale"):
-        MultiViewConfig(weight_scale=0.0)
-    assert MultiViewConfig(weight_scale=0.1).step_config(1).weight_scale == 0.1
     with pytest.raises(ValueError, match="init_preset"):
         MultiViewConfig(init="depth", init_preset="slow")
     depth = MultiViewConfig.depth()

@@ -23,22 +23,3 @@ def test_bounded_adam_bounds_and_freezing(rng):
     assert ((w >= 0) & (w <= 1)).all()
     only_reals = BoundedAdam(pts, w, r, StepConfig(), train=("reals",))
     assert [g["name"] for g in only_reals.optimizer.param_groups] == ["reals"]
-
-
-def test_weight_scale_scales_only_the_weights_step(rng):
-    """Weights are squared lengths: `weight_scale` gives them their own learning rate and bound."""
-    n = 20
-    moved = {}
-    for scale in (1.0, 0.1):
-        pts = torch.nn.Parameter(torch.tensor(rng.random((n, 3))))
-        w = torch.nn.Parameter(torch.full((n,), 0.5, dtype=torch.float64))
-        r = torch.nn.Parameter(torch.full((n,), 0.5, dtype=torch.float64))
-        p0, w0 = pts.detach().clone(), w.detach().clone()
-        opt = BoundedAdam(pts, w, r, StepConfig(lr=1e-3, update_bound=1e-3, weight_scale=scale))
-        for _ in range(5):
-            opt.zero_grad()
-            (pts.sum() + w.sum()).backward()
-            opt.step()
-        moved[scale] = (float((pts.detach() - p0).abs().max()), float((w.detach() - w0).abs().max()))
-    assert moved[1.0][0] == moved[0.1][0]  # positions: the same steps
-    assert abs(moved[1.0][1] - 5e-3) < 1e-9 and abs(moved[0.1][1] - 5e-4) < 1e-9

@@ -271,7 +271,6 @@ class MultiViewConfig(Presets):
     update_bound: float = 3e-4       # later epochs' per-step bound
     max_real_first: float = 3e-3     # epoch 0: upstream's real-value scale (reals' lr and bound: lr / it)
     max_real: float = 3e-3           # later epochs' real-value scale
-    weight_scale: float = 1.0        # weights' lr and bound = the positions' x this (1: upstream)
     views_per_step: int = 16         # random views rendered per step (upstream batch size)
     resolution: int | None = None    # images are area-averaged to this side (None: the capture's)
     lambda_depth: float = 1.0        # weight of the depth channel's L1 (diffuse 1); see `depth_channel`
@@ -320,7 +319,7 @@ class MultiViewConfig(Presets):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"MultiViewConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("grid_extent", "domain", "box", "lr_first", "bound_first", "lr", "update_bound",
-                     "max_real_first", "max_real", "weight_scale", "edge_width", "alpha_wdt", "alpha_real"):
+                     "max_real_first", "max_real", "edge_width", "alpha_wdt", "alpha_real"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"MultiViewConfig.{name} must be positive, got {getattr(self, name)}")
         for name in ("lambda_depth", "lambda_weight", "lambda_real_start", "lambda_real_end",
@@ -414,10 +413,8 @@ class MultiViewConfig(Presets):
         from dmesh.recon.optim import StepConfig
 
         if epoch == 0:
-            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first,
-                              weight_scale=self.weight_scale)
-        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real,
-                          weight_scale=self.weight_scale)
+            return StepConfig(lr=self.lr_first, update_bound=self.bound_first, max_real=self.max_real_first)
+        return StepConfig(lr=self.lr, update_bound=self.update_bound, max_real=self.max_real)
 
     def total_steps(self) -> int:
         return sum(self.steps_phase1) + sum(self.steps_phase2)

@@ -7,9 +7,6 @@ One step: NaN gradients are zeroed; per-point gradient clipping (the position gr
 kept within +-bound of its value before the step (positions and weights: `update_bound`; reals:
 `real_bound`), weights and reals are clamped to [0, 1], and frozen points keep real value 1.
 
-Weights are squared lengths, so one learning rate for positions and weights ties the weights' step to the
-length scale; `weight_scale` (not upstream, default 1) scales the weights' learning rate and bound.
-
 Real values live in [0, 1] here, whereas upstream stores them scaled by `max_real` = 3e-3 and shares one
 learning rate and bound; so the reals' learning rate and bound are the positions' divided by `max_real`.
 """
@@ -31,10 +28,9 @@ class StepConfig:
     update_bound: float = 3e-4     # per-step bound on each position / weight coordinate
     max_real: float = 3e-3         # upstream's real-value scale: reals' lr and bound are divided by it
     grad_clip: float | None = None  # per-point gradient norm clip; None: update_bound / lr (upstream)
-    weight_scale: float = 1.0      # weights' lr and bound = the positions' x this (1: upstream, one lr)
 
     def __post_init__(self):
-        require_positive(self, ("lr", "update_bound", "max_real", "weight_scale"))
+        require_positive(self, ("lr", "update_bound", "max_real"))
 
     @property
     def real_lr(self) -> float:
@@ -77,7 +73,7 @@ class BoundedAdam:
         self.train = tuple(train)
         groups = []
         for name in self.train:
-            lr = {"reals": config.real_lr, "weights": config.lr * config.weight_scale}.get(name, config.lr)
+            lr = config.real_lr if name == "reals" else config.lr
             groups.append({"params": [self.params[name]], "lr": lr, "name": name})
         self.optimizer = torch.optim.Adam(groups)
         self.frozen = torch.zeros(len(points), dtype=torch.bool)
@@ -103,8 +99,7 @@ class BoundedAdam:
         with torch.no_grad():
             for name in self.train:
                 p = self.params[name]
-                bound = {"reals": cfg.real_bound, "weights": cfg.update_bound * cfg.weight_scale}.get(
-                    name, cfg.update_bound)
+                bound = cfg.real_bound if name == "reals" else cfg.update_bound
                 p.copy_(torch.maximum(torch.minimum(p, before[name] + bound), before[name] - bound))
                 if name in ("weights", "reals"):
                     p.clamp_(0.0, 1.0)
