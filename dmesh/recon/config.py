@@ -366,12 +366,14 @@ class MultiViewConfig(Presets):
 
     @classmethod
     def fast(cls, **overrides) -> "MultiViewConfig":
-        """The paper's procedure at a CPU budget, 3-4 minutes per shape (64 views at 256 pixels) on 2 cores: a
-        14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples with all their Voronoi vertices, 60 + 20 /
-        40 + 20 / 40 + 20 steps of 6 views, the "both" interior rule, the depth-consistency filter and
-        `select_best`. Why each choice: docs/preset_choices.md; accuracy: reports/table2_multiview.md."""
-        base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(60, 40, 40), steps_phase2=(20, 20, 20),
-                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=None,
+        """The paper's procedure at a CPU budget, about 7 minutes per shape (64 views at 256 pixels) on 2 cores:
+        a 14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples of the previous mesh's Phong-curved faces
+        with all their Voronoi vertices, 150 + 20 steps per epoch of 6 views optimised at 128 pixels, the
+        "both" interior rule, the depth-consistency filter and `select_best`. Why each choice:
+        docs/preset_choices.md; accuracy: reports/multiview_fast.md."""
+        base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(150, 150, 150), steps_phase2=(20, 20, 20),
+                    lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=128,
+                    reseed_phong=0.75,
                     lambda_weight=0.0, real_ramp_steps=10, freeze_phase2=(0,), interior="both", select_best=True,
                     depth_tolerance=0.02, save_every=10)
         return cls(**{**base, **overrides})
@@ -428,9 +430,9 @@ MULTIVIEW_RECIPES = {
                     "resolution, L1 of diffuse + depth. Differs: silhouette gradients come from the soft "
                     "renderer's analytic coverage (upstream: a 0.1 x hard-render term), depth channel slope 0.5."),
     "fast": (True, "the paper's procedure cut to a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1K and 3K "
-                   "samples, 60 + 20 / 40 + 20 / 40 + 20 steps, 6 views per step; interior faces removed by "
-                   "apex and visibility, faces off the captured depth dropped, the epoch whose mesh renders "
-                   "closest to the images kept."),
+                   "samples (on the previous mesh's Phong-curved faces, not upstream), 150 + 20 steps per epoch, "
+                   "6 views per step at 128 pixels; interior faces removed by apex and visibility, faces off the "
+                   "captured depth dropped, the epoch whose mesh renders closest to the images kept."),
     "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
                      "pixels, then the multi-view interior and depth filters; no image-loss step."),
     "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
