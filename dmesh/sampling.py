@@ -41,11 +41,10 @@ def sample_surface(mesh, n: int, rng: np.random.Generator, phong: float = 0.0) -
     A mesh of zero area gives (up to n of) its corners instead. Draws from `rng`: one face choice, then u,
     then w, n each.
 
-    phong: 0 samples the flat faces. alpha > 0 moves each sample to Phong tessellation's curved triangle
-    (Boubekeur and Alexa 2008): p' = (1 - alpha) p + alpha sum_i b_i P_i(p), where b are the sample's
-    barycentric weights and P_i projects onto the tangent plane of corner i (`vertex_axes`; a crease corner
-    does not project). A mesh whose vertices lie on a smooth surface cuts its curves short by the sagitta of
-    each face; the curved samples lie about that much closer to the surface. 0.75 is the paper's choice.
+    phong: alpha of Phong tessellation (Boubekeur and Alexa 2008; 0: the flat faces, 0.75: their choice).
+    Each sample moves to (1 - alpha) p + alpha sum_i b_i P_i(p), b its barycentric weights and P_i the
+    projection onto corner i's tangent plane (`vertex_axes`; crease corners do not project), so samples of
+    a mesh inscribed in a smooth surface land near that surface instead of a sagitta inside it.
     """
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)

@@ -366,11 +366,10 @@ class MultiViewConfig(Presets):
 
     @classmethod
     def fast(cls, **overrides) -> "MultiViewConfig":
-        """The paper's procedure at a CPU budget, about 7 minutes per shape (64 views at 256 pixels) on 2 cores:
-        a 14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples of the previous mesh's Phong-curved faces
-        with all their Voronoi vertices, 150 + 20 steps per epoch of 6 views optimised at 128 pixels, the
-        "both" interior rule, the depth-consistency filter and `select_best`. Why each choice:
-        docs/preset_choices.md; accuracy: reports/multiview_fast.md."""
+        """The paper's procedure at a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples of
+        the previous mesh's Phong-curved faces with all their Voronoi vertices, 150 + 20 steps per epoch of 6
+        views optimised at 128 pixels, the "both" interior rule, the depth-consistency filter and
+        `select_best`. Why each choice: docs/preset_choices.md; accuracy and time: reports/multiview_fast.md."""
         base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(150, 150, 150), steps_phase2=(20, 20, 20),
                     lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=128,
                     reseed_phong=0.75,
