@@ -55,7 +55,7 @@ import numpy as np
 
 from eval.io import atomic_path, honour_umask, write_mesh, write_text
 from eval.store import LEASE_S, Lease, Store
-from eval.sweep import RunSpec, ShapeRef, Sweep, build_config, expand, get_method
+from eval.sweep import RunSpec, ShapeRef, Sweep, build_config, expand, get_method, sources_changed
 
 log = logging.getLogger(__name__)
 
@@ -330,6 +330,9 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
     """
     try:
         method = method if method is not None else get_method(spec.method)
+        changed = sources_changed(method, spec.code_version)
+        if changed:
+            raise RuntimeError(changed)
         config, _ = build_config(method, spec.overrides)
         inputs = load_inputs(spec, Path(gt_path), work)
         gt = load_gt(gt_path)

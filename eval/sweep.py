@@ -554,6 +554,20 @@ def code_version(method, root: str | Path = REPO) -> str:
     return f"{package_version()}+src.{source_hash(method_trees(method, root), root)[:16]}"
 
 
+def sources_changed(method, expected: str, root: str | Path = REPO) -> str | None:
+    """None when the method's sources on disk still hash to `expected` (a run's `code_version`), else a one-line
+    reason. Reads the files again: a forked worker inherits the parent's cached hashes, and it imports any
+    module its parent had not imported from the files as they are now, so a sweep whose sources were edited
+    after it started would otherwise run a mixture of old and new code under the old key."""
+    module_closure.cache_clear()
+    _source_hash.cache_clear()
+    now = code_version(method, root)
+    if now == expected:
+        return None
+    return (f"the sources of method {getattr(method, 'name', method)!r} changed after the sweep started "
+            f"({expected} -> {now}); run the sweep again to run them under their own key")
+
+
 # --------------------------------------------------------------------------------------------------- runs
 
 def _variant_kind(variant: Mapping) -> str | None:

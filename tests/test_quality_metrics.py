@@ -205,7 +205,8 @@ def test_quality_columns_in_table2(tmp_path):
 
     good = {"normal_consistency_oriented": 0.98, "oriented_fraction": 1.0, "watertight": True,
             "non_manifold_edges": 0, "non_manifold_vertices": 0, "boundary_edges": 0, "components": 1,
-            "gt_components": 1, "genus": 1, "gt_genus": 1, "self_intersecting_faces": 0}
+            "gt_components": 1, "genus": 1, "gt_genus": 1, "self_intersecting_faces": 0, "winding_consistent": True}
+    # consistently wound but facing the other way in part (an open sheet whose side was not observable)
     bad = {**good, "normal_consistency_oriented": 0.2, "oriented_fraction": 0.6, "watertight": False,
            "non_manifold_edges": 4, "non_manifold_vertices": 6, "boundary_edges": 10, "genus": None,
            "self_intersecting_faces": -1}
@@ -217,8 +218,9 @@ def test_quality_columns_in_table2(tmp_path):
     assert r["normal_consistency_oriented"] == pytest.approx(0.59)
     assert (r["oriented_fraction"], r["oriented_fraction_min"]) == (pytest.approx(0.8), 0.6)
     assert (r["watertight_share"], r["no_nm_edges_share"], r["topology_match_share"]) == (0.5, 0.5, 0.5)
+    assert r["winding_share"] == 1.0
     assert (r["non_manifold_edges"], r["boundary_edges"], r["self_intersecting_faces"]) == (2.0, 5.0, 0.0)
     md, _ = tables.write_table2(df, tmp_path / "rep", "pointcloud")
     text = md.read_text()
-    assert "## Mesh quality by class" in text and "| psr | closed | 2 | 0.590 | 80.0 | 60.0 | 50 | 50 |" in text
+    assert "## Mesh quality by class" in text and "| psr | closed | 2 | 0.590 | 80.0 | 60.0 | 100 | 50 | 50 |" in text
     assert "## Runs: mesh quality" in text and "| 1 (GT 1) | - (GT 1) |" in text

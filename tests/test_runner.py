@@ -210,6 +210,22 @@ def test_failing_run_is_recorded_and_the_sweep_goes_on(fake, tmp_path):
     assert run_sweep(sweep, RunnerConfig(work=str(tmp_path / "work"), retry_failed=True)).failed == 1
 
 
+def test_a_run_whose_method_sources_changed_since_planning_fails_with_the_reason(fake, tmp_path):
+    """A worker checks that its method's sources still hash to the run's key, so a sweep whose code was edited
+    while it ran records those runs as failed (rerun under their own key) instead of storing a mixture."""
+    import dataclasses
+
+    from eval.runner import execute_run
+    from eval.sweep import expand, get_method, sources_changed
+
+    (spec,) = expand(small_sweep())
+    assert sources_changed(get_method(spec.method), spec.code_version) is None
+    stale = dataclasses.replace(spec, code_version=spec.code_version + "0")
+    out = execute_run(stale, tmp_path / "missing_gt.ply", tmp_path / "work")
+    assert out["status"] == "failed"
+    assert "sources of method 'fake_hull' changed after the sweep started" in out["error"]
+
+
 def test_timeout_and_worker_crash_are_failed_runs(fake, tmp_path):
     from eval.runner import RunnerConfig, run_sweep
 

@@ -37,6 +37,9 @@ QUALITY_NOTE = ("Mesh quality (`eval.metrics.compute_metrics`): *oriented NC* is
                 "ignores orientation); *oriented* is the area-weighted share of faces whose normal points the "
                 "GT's way at the GT point closest to the face centre; both are blank for a GT that cannot be "
                 "oriented (a Moebius strip). Inside-out closed GTs are flipped outward before use. "
+                "*consistent winding*: share of runs in which every edge with two faces is wound oppositely by "
+                "them, whichever side they face (an open sheet seen in two-sided shaded images has no side "
+                "to pick, so there *oriented* says which side was chosen and this says whether it was kept). "
                 "*watertight*: every edge has exactly two faces; *NM*: non-manifold edges (more than two "
                 "faces) and vertices (more than one fan of faces); *topology = GT*: same number of connected "
                 "components and same genus as the GT; *self-int.*: faces crossing another face.")
@@ -141,7 +144,8 @@ def quality_summary(done) -> dict:
 
     Returns:
         {"oriented_fraction": mean, "oriented_fraction_min": min (the issue's target is on every run),
-        "watertight_share": fraction of runs that are watertight, "no_nm_edges_share": fraction with no
+        "watertight_share": fraction of runs that are watertight, "winding_share": fraction whose winding is
+        consistent (`topology`'s `winding_consistent`), "no_nm_edges_share": fraction with no
         non-manifold edge, "non_manifold_edges", "non_manifold_vertices", "boundary_edges": means,
         "topology_match_share": fraction whose component count and genus equal the GT's,
         "self_intersecting_faces": mean over the runs where it was counted}.
@@ -158,6 +162,7 @@ def quality_summary(done) -> dict:
     out = {"oriented_fraction": _mean_series(orient) if orient is not None else None,
            "oriented_fraction_min": float(orient.min()) if orient is not None and len(orient) else None,
            "watertight_share": _share(col("watertight")) if col("watertight") is not None else None,
+           "winding_share": _share(col("winding_consistent")) if col("winding_consistent") is not None else None,
            "no_nm_edges_share": None, "non_manifold_edges": mean("non_manifold_edges"),
            "non_manifold_vertices": mean("non_manifold_vertices"), "boundary_edges": mean("boundary_edges"),
            "topology_match_share": None,
@@ -216,6 +221,7 @@ QUALITY_RUN_COLUMNS = [("nc_oriented", "oriented NC", 1), ("oriented_fraction", 
 QUALITY_SUMMARY_COLUMNS = [("normal_consistency_oriented", "oriented NC", 1),
                            ("oriented_fraction", "oriented (%)", 100, ".1f"),
                            ("oriented_fraction_min", "oriented min (%)", 100, ".1f"),
+                           ("winding_share", "consistent winding (%)", 100, ".0f"),
                            ("watertight_share", "watertight (%)", 100, ".0f"),
                            ("no_nm_edges_share", "no NM edges (%)", 100, ".0f"),
                            ("non_manifold_edges", "NM edges", 1), ("non_manifold_vertices", "NM vertices", 1),
