@@ -323,3 +323,33 @@ def test_multiview_table_shows_dmesh_mv_as_dmesh(tmp_path):
     assert [r["method"] for r in tables.table2(df, "pointcloud")] == ["dmesh"]
     md, _ = tables.write_table2(df, tmp_path / "rep", "multiview")
     assert "dmesh_mv" not in md.read_text() and "| dmesh |" in md.read_text()
+
+
+def test_multiview_settings_study_leaves_table2_for_its_own_report(tmp_path):
+    """dmesh_mv runs with overrides beyond a preset are a settings study: out of Table 2, listed per shape beside
+    the shape's fast run, with CD over TSDF fusion's on that shape."""
+    from eval.reports.mv_settings import is_mv_settings_study, settings_rows, write_mv_settings
+
+    def row(key, method, label, cd, shape="torus", category="closed"):
+        return {**_row(key, method, shape, category, "done", cd, 2 * cd, 10.0, kind="multiview"),
+                "config_label": label}
+
+    with Store(tmp_path / "s.sqlite") as s:
+        for r in [row("a", "dmesh_mv", "", 4e-3), row("b", "dmesh_mv", "preset=depth", 0.2e-3),
+                  row("c", "dmesh_mv", "refine_seeds=[1000, 6000],steps_phase1=[150, 150, 150]", 2e-3),
+                  row("d", "tsdf", "", 1e-3), row("e", "dmesh_mv", "", 6e-3, "plant", "mixed"),
+                  row("f", "tsdf", "", 8e-3, "plant", "mixed")]:
+            s.upsert(r)
+        df = s.dataframe()
+    assert list(df[is_mv_settings_study(df)]["key"]) == ["c"]
+    rows = settings_rows(df)   # only the studied shape; its fast run and the study run, best first
+    assert [(r["shape"], r["settings"], r["over_tsdf"]) for r in rows] == [
+        ("torus", "refine_seeds=[1000, 6000],steps_phase1=[150, 150, 150]", pytest.approx(2.0)),
+        ("torus", "fast preset (as now)", pytest.approx(4.0))]
+    md, _ = write_mv_settings(df, tmp_path / "rep")
+    assert "| torus | closed | refine_seeds=[1000, 6000],steps_phase1=[150, 150, 150] |" in md.read_text()
+    write_reports(tmp_path / "s.sqlite", tmp_path / "all", renders=False)
+    table2 = (tmp_path / "all" / "table2_multiview.md").read_text()
+    assert "refine_seeds" not in table2 and "| dmesh [preset=depth] | closed |" in table2
+    assert (tmp_path / "all" / "multiview_fast.md").is_file()
+    assert write_mv_settings(df[df["key"] != "c"], tmp_path / "none") == []

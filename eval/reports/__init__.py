@@ -6,6 +6,7 @@
     table1.md/.csv                                        RE / FP of mesh-to-DMesh runs (paper's Table 1)
     ablation_weight.md/.csv, ablation_quality.md/.csv     regulariser ablations (paper's Tables 4 and 5)
     recipes_size.md/.csv, figures/recipes_size.png        the paper preset against the fast start at equal size
+    multiview_fast.md/.csv                                the multi-view fast preset's settings study, per run
     figures/bars_<kind>.png                               per-class bar plots of CD and time
     figures/renders_<kind>_<shape>.png                    GT, input and each method's mesh side by side
     index.html                                            links and shows all of the above
@@ -73,11 +74,13 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         df_all = select_runs(store.dataframe(), keys)
     from eval.reports.ablation import KNOBS, ablation_rows, is_ablation, write_ablations
     from eval.reports.robustness import has_runs, is_robustness, write_robustness
+    from eval.reports.mv_settings import is_mv_settings_study, write_mv_settings
     from eval.reports.size import is_size_study, write_size
 
-    # Table 2 compares methods at their sweep settings; the regulariser ablations, the DMesh size study and the
-    # runs on corrupted inputs (robustness sweeps) get their own tables.
-    df = df_all[~is_ablation(df_all) & ~is_size_study(df_all) & ~is_robustness(df_all)] if len(df_all) else df_all
+    # Table 2 compares methods at their sweep settings; the regulariser ablations, the DMesh size study, the
+    # multi-view settings study and the runs on corrupted inputs (robustness sweeps) get their own tables.
+    df = (df_all[~is_ablation(df_all) & ~is_size_study(df_all) & ~is_mv_settings_study(df_all)
+                 & ~is_robustness(df_all)] if len(df_all) else df_all)
     counts = df["status"].value_counts().to_dict() if len(df) else {}
     written: list[Path] = []
     sections: list[tuple[str, str]] = []
@@ -160,6 +163,12 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     body = [f"<p class='links'><a href='{size_files[0].name}'>Markdown</a> <a href='{size_files[1].name}'>CSV</a></p>"]
     body += [f"<img src='figures/{p.name}' alt='CD against faces'>" for p in size_files[2:]]
     sections.append(("DMesh's gradient steps at equal mesh size (point clouds)", "\n".join(body)))
+    mv_files = write_mv_settings(df_all[~is_robustness(df_all)] if len(df_all) else df_all, out)
+    if mv_files:
+        written += mv_files
+        sections.append(("The multi-view fast preset's settings, run by run",
+                         f"<p class='links'><a href='{mv_files[0].name}'>Markdown</a> "
+                         f"<a href='{mv_files[1].name}'>CSV</a></p>"))
     if has_runs(df_all):
         files, body = write_robustness(df_all, out, db, work, renders=renders)
         written += files

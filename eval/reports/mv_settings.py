@@ -1,0 +1,94 @@
+"""How the multi-view `fast` preset's settings were chosen: DMesh multi-view runs with overrides, per shape.
+
+Settings-study runs are multi-view DMesh runs (`dmesh_mv`) whose config overrides name anything beyond a
+preset (`eval/sweeps/multiview_fast.yaml`, `multiview_schedule.yaml`). They are kept out of Table 2, which
+compares presets, and reported here beside the same shape's `fast` preset run and TSDF fusion run:
+
+    multiview_fast.md / .csv     one row per run: shape, class, settings, CD p2s, CD L1, faces, time, and CD p2s
+                                 over TSDF fusion's on the same shape
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from eval.io import write_text
+from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
+
+CLASSES = ("closed", "open", "mixed")
+CSV_COLUMNS = ["shape", "category", "settings", "faces", "cd_p2s", "cd_l1", "time_s", "tsdf_cd_p2s", "over_tsdf"]
+#: What the settings column says for the runs without overrides.
+PRESET_ROW = "fast preset (as now)"
+
+
+#: The override names in a config label ("a=1,b=[2, 3]": a, b; `eval.sweep.config_label`).
+_KEY = re.compile(r"(?:^|,)([A-Za-z_][A-Za-z_0-9]*)=")
+
+
+def _overrides(label) -> set:
+    return set(_KEY.findall(label)) if isinstance(label, str) else set()
+
+
+def is_mv_settings_study(df):
+    """(rows,) bool Series: the settings-study runs of `df` (a `Store.dataframe()`): multi-view DMesh runs whose
+    overrides go beyond `preset`."""
+    import pandas as pd
+
+    if df is None or not len(df):
+        return pd.Series(False, index=getattr(df, "index", None), dtype=bool)
+    study = df["config_label"].map(lambda c: bool(_overrides(c) - {"preset"}))
+    return (df["method"] == "dmesh_mv") & (df["input_kind"] == "multiview") & study
+
+
+def settings_rows(df) -> list[dict]:
+    """One row per done run on the shapes of the study: its runs, the shape's `fast` preset run (no override)
+    and its TSDF fusion run's CD as the reference; sorted by class, shape, then CD p2s."""
+    if df is None or not len(df):
+        return []
+    study = df[is_mv_settings_study(df) & (df["status"] == "done")]
+    shapes = set(study["shape"])
+    if not shapes:
+        return []
+    mv = df[(df["input_kind"] == "multiview") & (df["status"] == "done") & df["shape"].isin(shapes)]
+    label = mv["config_label"].fillna("").astype(str)
+    tsdf = {r["shape"]: num(r.get("cd_p2s")) for _, r in mv[(mv["method"] == "tsdf") & (label == "")].iterrows()}
+    runs = mv[(mv["method"] == "dmesh_mv") & ((label == "") | is_mv_settings_study(mv))]
+    rows = []
+    for _, r in runs.iterrows():
+        cd, ref = num(r.get("cd_p2s")), tsdf.get(r["shape"])
+        rows.append({"shape": r["shape"], "category": r["category"],
+                     "settings": r["config_label"] or PRESET_ROW, "faces": num(r.get("faces")), "cd_p2s": cd,
+                     "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")), "tsdf_cd_p2s": ref,
+                     "over_tsdf": cd / ref if cd is not None and ref else None})
+    order = {c: i for i, c in enumerate(CLASSES)}
+    rows.sort(key=lambda x: (order.get(x["category"], len(order)), x["shape"], x["cd_p2s"] or float("inf")))
+    return rows
+
+
+def write_mv_settings(df, out: str | Path) -> list[Path]:
+    """Writes `multiview_fast.{md,csv}` under `out` when the store has settings-study runs; returns the paths
+    (none otherwise, so a committed report is not replaced by an empty one)."""
+    rows = settings_rows(df)
+    if not rows:
+        return []
+    out = Path(out)
+    md = ["# The multi-view `fast` preset's settings, run by run", "",
+          "DMesh's multi-view image-loss procedure (`dmesh_mv`, grid start, no depth-lifted start) with settings "
+          "that differ from the current `fast` preset, beside the preset itself and TSDF fusion on the same shape "
+          "(`eval/sweeps/multiview_fast.yaml`, `eval/sweeps/multiview_schedule.yaml`). *settings*: the overrides "
+          "on top of the `fast` preset. */ TSDF*: CD p2s over TSDF fusion's on that shape (the target of issue "
+          "[recipes] is at most 2 per class). Why each setting was chosen: `docs/preset_choices.md`. "
+          f"{FRAME_NOTE} CD x1e-3; the CSV holds raw distances. Times are wall seconds on this machine, under "
+          "whatever load the sweep ran beside.", "",
+          markdown(rows, [("shape", "shape", None), ("category", "class", None), ("settings", "settings", None),
+                          ("faces", "faces", 1, ".0f"), ("cd_p2s", "CD p2s", 1e3), ("cd_l1", "CD L1", 1e3),
+                          ("time_s", "time (s)", 1, ".0f"), ("tsdf_cd_p2s", "TSDF CD p2s", 1e3),
+                          ("over_tsdf", "/ TSDF", 1, ".2f")]),
+          "", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
+    md_path, csv_path = out / "multiview_fast.md", out / "multiview_fast.csv"
+    write_text(md_path, "\n".join(md))
+    write_text(csv_path, to_csv(rows, CSV_COLUMNS))
+    return [md_path, csv_path]
+
+
+__all__ = ["is_mv_settings_study", "settings_rows", "write_mv_settings"]
