@@ -39,7 +39,33 @@ class DMeshMultiView(DMeshPointCloud):
             raise ValueError("this method needs a multi-view capture (inputs.views is None)")
         if inputs.seed != cfg.seed:
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
-        return self._output(reconstruct(inputs.views, cfg), cfg, sw)
+        epochs: dict[int, dict] = {}
+        callback = self._epoch_monitor(inputs.monitor, epochs, sw) if inputs.monitor is not None else None
+        mesh, info = self._output(reconstruct(inputs.views, cfg, callback=callback), cfg, sw)
+        for record in info.get("epochs", []):
+            record.update(epochs.get(record.get("epoch"), {}))
+        return mesh, info
+
+    @staticmethod
+    def _epoch_monitor(monitor, epochs: dict, sw: Stopwatch):
+        """The `reconstruct` callback that measures each epoch's mesh with the harness monitor (CD p2s against the
+        GT, as `monitor_cd_p2s` in `info["epochs"]`), so a run shows what every epoch gave, not only the one
+        `select_best` returned; its seconds go to the "monitor" stage."""
+        import time
+
+        import trimesh
+
+        def callback(event: dict) -> None:
+            stage = event.get("stage", "")
+            if not (stage.startswith("epoch") and stage.endswith("_end")) or "triangles" not in event \
+                    or len(event["triangles"]) == 0:
+                return
+            t0 = time.perf_counter()
+            mesh = trimesh.Trimesh(event["vertices"], event["triangles"], process=False)
+            epochs[int(event["epoch"])] = {f"monitor_{k}": v for k, v in monitor(mesh).items()}
+            sw.timings["monitor"] = sw.timings.get("monitor", 0.0) + time.perf_counter() - t0
+
+        return callback
 
 
 __all__ = ["DMeshMultiView"]

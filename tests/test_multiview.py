@@ -172,9 +172,18 @@ def test_harness_method(sphere_views):
 
     method = get_method("dmesh_mv")
     assert method.input_kind == "multiview" and method.default_config() == MultiViewConfig.fast()
-    res = method.reconstruct(Inputs(views=sphere_views, seed=3),
+    seen = []
+
+    def monitor(mesh):  # the harness's CD monitor, here a face count of each epoch's mesh
+        seen.append(len(mesh.faces))
+        return {"faces_seen": len(mesh.faces)}
+
+    res = method.reconstruct(Inputs(views=sphere_views, seed=3, monitor=monitor),
                              {"preset": "tiny", "steps_phase1": [4, 2], "steps_phase2": [2, 2]})
     assert len(res.mesh.faces) > 0 and res.timings["total"] > 0 and "phase1_wdt" in res.timings
+    # every epoch's mesh was measured, and the figures sit in that epoch's record
+    assert [e["monitor_faces_seen"] for e in res.info["epochs"]] == [e["faces"] for e in res.info["epochs"]] == seen
+    assert "monitor" in res.timings
     assert res.info["config"]["seed"] == 3 and res.info["config"]["steps_phase1"] == (4, 2)
     with pytest.raises(ValueError, match="unknown config keys"):
         method.reconstruct(Inputs(views=sphere_views), {"preset": "tiny", "bogus": 1})
