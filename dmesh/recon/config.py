@@ -380,9 +380,11 @@ class MultiViewConfig(Presets):
     @classmethod
     def depth(cls, **overrides) -> "MultiViewConfig":
         """Depth pixels first (not upstream): epoch 0 is DMesh's point-cloud fit to 100K lifted depth pixels
-        (`depth_init`, point-cloud `fast` preset), then the multi-view extraction ("both" interior rule at the
-        capture's resolution, the depth-consistency filter). No image-loss step (docs/preset_choices.md)."""
-        base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="both",
+        (`depth_init`, point-cloud `fast` preset), then the multi-view extraction (the point-cloud extraction's
+        one-sheet interior rule, which leaves open parts one sheet rather than the overlapping layers of thin
+        tets the apex and visibility rules keep; the depth-consistency filter). No image-loss step
+        (docs/preset_choices.md)."""
+        base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="sheet",
                     depth_tolerance=0.02, select_best=False, save_every=10)
         return cls(**{**base, **overrides})
 
@@ -396,7 +398,7 @@ class MultiViewConfig(Presets):
         base = dict(init="depth", refine_seeds=(), steps_phase1=(REFINE_STEPS[0],), steps_phase2=(REFINE_STEPS[1],),
                     lr_first=REFINE_LR, bound_first=REFINE_LR, max_real_first=3e-3, views_per_step=6,
                     resolution=None, lambda_weight=0.0, lambda_real_start=1e-3, real_ramp_steps=0,
-                    freeze_phase2=(0,), interior="both", depth_tolerance=0.02, select_best=True, save_every=10)
+                    freeze_phase2=(0,), interior="sheet", depth_tolerance=0.02, select_best=True, save_every=10)
         return cls(**{**base, **overrides})
 
     @classmethod
@@ -433,7 +435,7 @@ MULTIVIEW_RECIPES = {
                    "6 views per step at 128 pixels; interior faces removed by apex and visibility, faces off the "
                    "captured depth dropped, the epoch whose mesh renders closest to the images kept."),
     "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
-                     "pixels, then the multi-view interior and depth filters; no image-loss step."),
+                     "pixels, then the one-sheet interior rule and the depth filter; no image-loss step."),
     "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
                      "tetrahedral-renderer steps (6 views per step), keeping the start when the steps do not "
                      "lower the image loss over all views."),
