@@ -342,8 +342,9 @@ def test_multiview_settings_study_leaves_table2_for_its_own_report(tmp_path):
             s.upsert(r)
         df = s.dataframe()
     assert list(df[is_mv_settings_study(df)]["key"]) == ["c"]
-    rows = settings_rows(df)   # only the studied shape; its fast run and the study run, best first
+    rows = settings_rows(df)   # only the studied shape; its preset runs and the study run, best first
     assert [(r["shape"], r["settings"], r["over_tsdf"]) for r in rows] == [
+        ("torus", "depth preset (as now)", pytest.approx(0.2)),
         ("torus", "refine_seeds=[1000, 6000],steps_phase1=[150, 150, 150]", pytest.approx(2.0)),
         ("torus", "fast preset (as now)", pytest.approx(4.0))]
     md, _ = write_mv_settings(df, tmp_path / "rep")

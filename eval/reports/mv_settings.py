@@ -1,8 +1,9 @@
-"""How the multi-view `fast` preset's settings were chosen: DMesh multi-view runs with overrides, per shape.
+"""How the multi-view presets' settings were chosen: DMesh multi-view runs with overrides, per shape.
 
 Settings-study runs are multi-view DMesh runs (`dmesh_mv`) whose config overrides name anything beyond a
-preset (`eval/sweeps/multiview_fast.yaml`, `multiview_schedule.yaml`). They are kept out of Table 2, which
-compares presets, and reported here beside the same shape's `fast` preset run and TSDF fusion run:
+preset (`eval/sweeps/multiview_fast.yaml`, `multiview_schedule.yaml`, `multiview_depth.yaml`). They are kept
+out of Table 2, which compares presets, and reported here beside the same shape's preset runs (Table 2's rows)
+and its TSDF fusion run:
 
     multiview_fast.md / .csv     one row per run: shape, class, settings, CD p2s, CD L1, faces, time, and CD p2s
                                  over TSDF fusion's on the same shape
@@ -17,8 +18,11 @@ from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
 
 CLASSES = ("closed", "open", "mixed")
 CSV_COLUMNS = ["shape", "category", "settings", "faces", "cd_p2s", "cd_l1", "time_s", "tsdf_cd_p2s", "over_tsdf"]
-#: What the settings column says for the runs without overrides.
-PRESET_ROW = "fast preset (as now)"
+
+
+def _preset_row(label: str) -> str:
+    """What the settings column says for a run of a preset as it is now ("" is the default, `fast`)."""
+    return f"{label.split('=', 1)[1] if label else 'fast'} preset (as now)"
 
 
 #: The override names in a config label ("a=1,b=[2, 3]": a, b; `eval.sweep.config_label`).
@@ -29,6 +33,11 @@ def _overrides(label) -> set:
     return set(_KEY.findall(label)) if isinstance(label, str) else set()
 
 
+def is_study(label) -> bool:
+    """Whether a config label names overrides beyond `preset`."""
+    return bool(_overrides(label) - {"preset"})
+
+
 def is_mv_settings_study(df):
     """(rows,) bool Series: the settings-study runs of `df` (a `Store.dataframe()`): multi-view DMesh runs whose
     overrides go beyond `preset`."""
@@ -36,13 +45,13 @@ def is_mv_settings_study(df):
 
     if df is None or not len(df):
         return pd.Series(False, index=getattr(df, "index", None), dtype=bool)
-    study = df["config_label"].map(lambda c: bool(_overrides(c) - {"preset"}))
+    study = df["config_label"].map(is_study)
     return (df["method"] == "dmesh_mv") & (df["input_kind"] == "multiview") & study
 
 
 def settings_rows(df) -> list[dict]:
-    """One row per done run on the shapes of the study: its runs, the shape's `fast` preset run (no override)
-    and its TSDF fusion run's CD as the reference; sorted by class, shape, then CD p2s."""
+    """One row per done DMesh run on the shapes of the study: its runs and the shape's preset runs (Table 2's
+    rows), with its TSDF fusion run's CD as the reference; sorted by class, shape, then CD p2s."""
     if df is None or not len(df):
         return []
     study = df[is_mv_settings_study(df) & (df["status"] == "done")]
@@ -52,12 +61,13 @@ def settings_rows(df) -> list[dict]:
     mv = df[(df["input_kind"] == "multiview") & (df["status"] == "done") & df["shape"].isin(shapes)]
     label = mv["config_label"].fillna("").astype(str)
     tsdf = {r["shape"]: num(r.get("cd_p2s")) for _, r in mv[(mv["method"] == "tsdf") & (label == "")].iterrows()}
-    runs = mv[(mv["method"] == "dmesh_mv") & ((label == "") | is_mv_settings_study(mv))]
+    runs = mv[mv["method"] == "dmesh_mv"]
     rows = []
     for _, r in runs.iterrows():
         cd, ref = num(r.get("cd_p2s")), tsdf.get(r["shape"])
         rows.append({"shape": r["shape"], "category": r["category"],
-                     "settings": r["config_label"] or PRESET_ROW, "faces": num(r.get("faces")), "cd_p2s": cd,
+                     "settings": r["config_label"] if is_study(r["config_label"]) else _preset_row(r["config_label"]),
+                     "faces": num(r.get("faces")), "cd_p2s": cd,
                      "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")), "tsdf_cd_p2s": ref,
                      "over_tsdf": cd / ref if cd is not None and ref else None})
     order = {c: i for i, c in enumerate(CLASSES)}
@@ -72,11 +82,11 @@ def write_mv_settings(df, out: str | Path) -> list[Path]:
     if not rows:
         return []
     out = Path(out)
-    md = ["# The multi-view `fast` preset's settings, run by run", "",
-          "DMesh's multi-view image-loss procedure (`dmesh_mv`, grid start, no depth-lifted start) with settings "
-          "that differ from the current `fast` preset, beside the preset itself and TSDF fusion on the same shape "
-          "(`eval/sweeps/multiview_fast.yaml`, `eval/sweeps/multiview_schedule.yaml`). *settings*: the overrides "
-          "on top of the `fast` preset. */ TSDF*: CD p2s over TSDF fusion's on that shape (the target of issue "
+    md = ["# The multi-view presets' settings, run by run", "",
+          "DMesh on multi-view input (`dmesh_mv`) with settings that differ from a preset, beside the presets "
+          "as they are now (Table 2's rows) and TSDF fusion on the same shape (`eval/sweeps/multiview_fast.yaml`, "
+          "`multiview_schedule.yaml`, `multiview_depth.yaml`). *settings*: the overrides on top of the `fast` "
+          "preset, or of the preset they name. */ TSDF*: CD p2s over TSDF fusion's on that shape (the target of issue "
           "[recipes] is at most 2 per class). Why each setting was chosen: `docs/preset_choices.md`. "
           f"{FRAME_NOTE} CD x1e-3; the CSV holds raw distances. Times are wall seconds on this machine, under "
           "whatever load the sweep ran beside.", "",
