@@ -98,8 +98,9 @@ def _one_sheet(pd, real_tet: np.ndarray, boundary: np.ndarray, interior: np.ndar
     p = pd.points
     centre = p[faces].mean(1)
     # The apex of the tet across: its vertex sum minus the face's (vertex ids are distinct). A hull face
-    # has no tet across; its apex is taken on the negative side.
+    # has no tet across; its apex is taken on the negative side (its own first vertex stands in, a valid index).
     apex = pd.tets[np.maximum(outer, 0)].astype(np.int64).sum(1) - faces.sum(1)
+    apex = np.where(outer >= 0, apex, faces[:, 0])
     side = np.einsum("ij,ij->i", p[apex] - centre, normal[cluster]) > 0
     side &= outer >= 0
     area = face_areas(p, faces)
@@ -137,6 +138,8 @@ class SurfaceConfig:
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
+    turn_faces: bool = True    # a sheet face whose input normals clearly disagree turns on its own (False:
+                               # whole sheets only, for vectors that are not normals, e.g. towards cameras)
     seed: int = 0              # rotation of the walk directions
     workers: int = 1           # threads of the k-d tree queries (input normals)
 
@@ -212,7 +215,8 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         sheet = sheet[~crumbs]
         info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()),
                     crumbs_dropped=int(crumbs.sum()))
-    sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers)
+    sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
+                                 turn_faces=cfg.turn_faces)
     faces = np.concatenate([closed, sheet])
     vertices = np.arange(len(points))
     if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices

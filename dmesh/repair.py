@@ -184,7 +184,7 @@ def sum_along_walks(nxt: np.ndarray, step: np.ndarray, max_doublings: int) -> tu
 
 
 def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int = 3, confident: float = 0.5,
-                  workers: int = 1) -> np.ndarray:
+                  workers: int = 1, turn_faces: bool = True) -> np.ndarray:
     """(F, 3) int64 faces wound consistently per component, facing the input normals when given.
 
     Args:
@@ -197,7 +197,9 @@ def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int 
             to agree on its own: where a sheet meets itself at an edge (two layers fused by the
             extraction), a component can be non-orientable and its seam would fall anywhere; the input
             normals put it where the layers meet. Faces whose nearest normals cancel (a thin sheet sampled
-            from both sides) follow their component.
+            from both sides) follow their component. With `turn_faces` False no face turns on its own: for
+            vectors that are not normals (directions towards the cameras that saw each point, which on a
+            sheet seen from both sides point to either side patch by patch), whole components only.
             Without normals, each component is turned so that its signed volume about the origin is
             positive (outward for a closed component; an open one faces away from the origin, e.g. a cap's
             convex side when the origin is the object's centre).
@@ -224,7 +226,8 @@ def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int 
     volume = np.bincount(comp, np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])), n)
     turn = np.where(np.abs(vote) >= confident / 2, vote < 0, volume < 0)[comp]
     agree[turn] = -agree[turn]
-    turn ^= agree <= -confident
+    if turn_faces:
+        turn ^= agree <= -confident
     f[turn] = f[turn][:, ::-1]
     return f
 

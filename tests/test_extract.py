@@ -46,6 +46,20 @@ def test_flat_real_tet_keeps_its_larger_sheet():
     assert sorted(map(sorted, sheet.tolist())) == sorted(map(sorted, larger.tolist()))
 
 
+def test_sheet_rule_with_real_tets_on_the_hull():
+    """Real tets on the convex hull (every point real, as after image-loss steps pushed points to the box): their
+    hull faces have no tet across; the one-sheet rule must still return one side of the cluster, not index
+    past the points."""
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        pts = rng.normal(size=(40, 3))
+        pts[:, 2] *= 0.05                                     # a thin slab: one flat cluster of real tets
+        pd = wdt.PowerDiagram.from_points(pts, None)
+        keep = mesh_faces(pd, np.ones(len(pts), bool), "sheet")
+        hull = (pd.face_tets < 0).any(1)
+        assert keep.any() and (keep <= hull).all()            # a side of the slab: hull faces only
+
+
 def _apex_interior(pd, real):
     """Upstream's `remove_invisible` rule: faces whose two tets both have a real apex (the tet's vertex not in
     the face); hull faces never."""

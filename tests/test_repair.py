@@ -46,6 +46,25 @@ def test_sheets_meeting_at_an_edge_are_split_and_folds_dropped():
     assert keep.sum() == 4 and not keep[2]
 
 
+def test_a_sheet_turns_whole_when_its_vectors_are_not_normals():
+    """Directions towards cameras on a sheet seen from both sides point up on one half and down on the other:
+    face by face they would split the sheet's winding; with turn_faces=False the sheet turns whole, to the side
+    most of its area agrees with."""
+    from eval.metrics import topology
+
+    grid = trimesh.creation.box(extents=(2.0, 2.0, 0.0)).subdivide().subdivide()   # a flat square, doubled
+    top = grid.faces[grid.face_normals[:, 2] > 0]
+    sheet = trimesh.Trimesh(grid.vertices, top).subdivide()
+    v, f = np.asarray(sheet.vertices), np.asarray(sheet.faces)
+    centres = v[f].mean(1)
+    towards = np.where((centres[:, 0] < 0.4)[:, None], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0])  # 70 % up
+    patchy = repair.orient_sheets(v, f, (centres, towards))
+    whole = repair.orient_sheets(v, f, (centres, towards), turn_faces=False)
+    assert topology(v, patchy)["inconsistent_winding_edges"] > 0
+    assert topology(v, whole)["inconsistent_winding_edges"] == 0
+    assert (trimesh.Trimesh(v, whole, process=False).face_normals[:, 2] > 0).all()
+
+
 def test_sheet_winding_follows_the_normals_or_the_volume():
     box = trimesh.creation.box()
     scrambled = box.faces.copy()

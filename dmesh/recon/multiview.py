@@ -377,7 +377,9 @@ class _Run:
             with self.clock("orient"):
                 seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
                 towards = towards_cameras((lifted_points(vw) - self.center) * self.scale, self.eyes[seen])
-                mesh = surface_of_mesh(mesh, self.pd, towards, SurfaceConfig(seed=cfg.seed))
+                # Directions towards the cameras are not normals: on a sheet seen from both sides they point
+                # to either side patch by patch, so sheets turn whole (dmesh.repair.orient_sheets).
+                mesh = surface_of_mesh(mesh, self.pd, towards, SurfaceConfig(seed=cfg.seed, turn_faces=False))
                 info["surface"] = mesh.metadata.pop("surface")
         mesh.vertices = np.asarray(mesh.vertices) / self.scale + self.center
         info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)), "points": len(self.dm),
