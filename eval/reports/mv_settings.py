@@ -5,8 +5,9 @@ preset (`eval/sweeps/multiview_fast.yaml`, `multiview_schedule.yaml`, `multiview
 out of Table 2, which compares presets, and reported here beside the same shape's preset runs (Table 2's rows)
 and its TSDF fusion run:
 
-    multiview_fast.md / .csv     one row per run: shape, class, settings, CD p2s, CD L1, faces, time, and CD p2s
-                                 over TSDF fusion's on the same shape
+    multiview_fast.md / .csv     one row per run: shape, class, settings, CD p2s, CD L1, faces, time, CD p2s
+                                 over TSDF fusion's on the same shape, components, boundary edges and
+                                 self-intersecting faces
 """
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from eval.io import write_text
 from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
 
 CLASSES = ("closed", "open", "mixed")
-CSV_COLUMNS = ["shape", "category", "settings", "faces", "cd_p2s", "cd_l1", "time_s", "tsdf_cd_p2s", "over_tsdf"]
+CSV_COLUMNS = ["shape", "category", "settings", "faces", "cd_p2s", "cd_l1", "time_s", "tsdf_cd_p2s", "over_tsdf",
+               "components", "boundary_edges", "self_intersecting_faces"]
 
 
 def _preset_row(label: str) -> str:
@@ -49,6 +51,12 @@ def is_mv_settings_study(df):
     return (df["method"] == "dmesh_mv") & (df["input_kind"] == "multiview") & study
 
 
+def _counted(value):
+    """A count, None where it was not computed (stored as -1) or is missing."""
+    v = num(value)
+    return v if v is not None and v >= 0 else None
+
+
 def settings_rows(df) -> list[dict]:
     """One row per done DMesh run on the shapes of the study: its runs and the shape's preset runs (Table 2's
     rows), with its TSDF fusion run's CD as the reference; sorted by class, shape, then CD p2s."""
@@ -69,7 +77,9 @@ def settings_rows(df) -> list[dict]:
                      "settings": r["config_label"] if is_study(r["config_label"]) else _preset_row(r["config_label"]),
                      "faces": num(r.get("faces")), "cd_p2s": cd,
                      "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")), "tsdf_cd_p2s": ref,
-                     "over_tsdf": cd / ref if cd is not None and ref else None})
+                     "over_tsdf": cd / ref if cd is not None and ref else None,
+                     "components": num(r.get("components")), "boundary_edges": num(r.get("boundary_edges")),
+                     "self_intersecting_faces": _counted(r.get("self_intersecting_faces"))})
     order = {c: i for i, c in enumerate(CLASSES)}
     rows.sort(key=lambda x: (order.get(x["category"], len(order)), x["shape"], x["cd_p2s"] or float("inf")))
     return rows
@@ -93,7 +103,9 @@ def write_mv_settings(df, out: str | Path) -> list[Path]:
           markdown(rows, [("shape", "shape", None), ("category", "class", None), ("settings", "settings", None),
                           ("faces", "faces", 1, ".0f"), ("cd_p2s", "CD p2s", 1e3), ("cd_l1", "CD L1", 1e3),
                           ("time_s", "time (s)", 1, ".0f"), ("tsdf_cd_p2s", "TSDF CD p2s", 1e3),
-                          ("over_tsdf", "/ TSDF", 1, ".2f")]),
+                          ("over_tsdf", "/ TSDF", 1, ".2f"), ("components", "components", 1, ".0f"),
+                          ("boundary_edges", "boundary edges", 1, ".0f"),
+                          ("self_intersecting_faces", "self-int. faces", 1, ".0f")]),
           "", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
     md_path, csv_path = out / "multiview_fast.md", out / "multiview_fast.csv"
     write_text(md_path, "\n".join(md))
