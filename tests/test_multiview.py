@@ -120,9 +120,8 @@ def test_depth_start_reconstruction(sphere, sphere_views, one_thread):
 
 @needs_gl
 def test_depth_preset_leaves_an_open_shape_one_clean_sheet(one_thread):
-    """On an open shape the depth preset returns one sheet: the apex and visibility rules kept the overlapping
-    faces of the thin tets between the lifted points (on the Table 2 bowl: 12K components, 64K self-crossing
-    faces), the one-sheet rule does not."""
+    """On an open shape the depth preset returns one sheet: the apex and visibility rules keep the overlapping
+    faces of the thin tets between the lifted points, the one-sheet rule does not."""
     from datasets import capture as cap
     from datasets import synthetic
     from datasets.normalize import normalize
