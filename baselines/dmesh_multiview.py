@@ -41,7 +41,8 @@ class DMeshMultiView(DMeshPointCloud):
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
         epochs: dict[int, dict] = {}
         callback = self._epoch_monitor(inputs.monitor, epochs, sw) if inputs.monitor is not None else None
-        mesh, info = self._output(reconstruct(inputs.views, cfg, callback=callback), cfg, sw)
+        res = reconstruct(inputs.views, cfg, callback=callback, state_path=inputs.checkpoint)
+        mesh, info = self._output(res, cfg, sw)
         for record in info.get("epochs", []):
             record.update(epochs.get(record.get("epoch"), {}))
         return mesh, info

@@ -6,6 +6,8 @@ The config is `dmesh.recon.pointcloud.PointCloudConfig` (a frozen dataclass): th
 preset. Pass an instance (e.g. `PointCloudConfig.paper()`), or a mapping of field overrides, optionally with
 `"preset": "paper" | "fast" | "noisy" | "tiny"` naming the base they apply to. Normals go into the loss when
 `lambda_normal` > 0, and always vote on the output's inside / outside and the side its open sheets face.
+With `Inputs.checkpoint` the procedure saves its resumable state there (every `save_every` steps) and resumes
+it; a resumed run's curve (`info["curve"]`) starts at the resume.
 """
 from __future__ import annotations
 
@@ -41,7 +43,7 @@ class DMeshPointCloud(Method):
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
         curve = []
         probe = self._probe(inputs.monitor, cfg, pts, curve, sw) if cfg.steps_phase1 + cfg.steps_phase2 else None
-        mesh, info = self._output(reconstruct(pts, nrm, cfg, probe=probe), cfg, sw)
+        mesh, info = self._output(reconstruct(pts, nrm, cfg, probe=probe, state_path=inputs.checkpoint), cfg, sw)
         if curve:
             info["curve"] = curve
         return mesh, info
@@ -81,6 +83,8 @@ class DMeshPointCloud(Method):
         for k, v in res.timings.items():
             if k != "total":
                 sw.timings[k] = sw.timings.get(k, 0.0) + v
+        if "resumed_from" in res.info:  # an interrupted attempt's state (`Inputs.checkpoint`) was resumed
+            sw.timings["earlier_attempts"] = float(res.info["resumed_from"].get("seconds", 0.0))
         last = res.history[-1] if res.history else {}
         info = dict(res.info)
         info.update({"final_loss": last.get("loss"), "steps": len(res.history), "config": dataclasses.asdict(cfg)})

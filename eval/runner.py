@@ -21,6 +21,13 @@ Flow of `run_sweep(sweep, work, ...)`:
 Every failure of a run (exception, empty mesh, timeout, worker crash) is stored as a `failed` row with a
 one-line error, and the sweep goes on.
 
+Checkpoints. Each run may keep a resumable state in `WORK/states/<key[:2]>/<key>.pt` (`checkpoint_path`,
+handed to the method as `Inputs.checkpoint`; the DMesh procedures save theirs every `save_every` steps). It
+is removed when the run's outcome is stored, except when its worker died (killed, out of memory, or the
+machine stopped), so a rerun of a run whose process died (redone as above, or with `retry_failed`) goes on
+from its last save instead of from step 0; its time includes the earlier attempts up to that save. A run that
+timed out or raised starts over.
+
 Sharing a store. Two sweeps (processes) may run on one work folder and store at once; each run is computed
 once. A run is claimed atomically with a lease (this process's id and host, a token of this sweep and a
 heartbeat; `eval.store.Store.claim`), and this process refreshes the heartbeat every `lease_s / 6` seconds
@@ -296,6 +303,17 @@ def mesh_path_for(work: str | Path, key: str) -> Path:
     return Path(work) / "meshes" / key[:2] / f"{key}.ply"
 
 
+def checkpoint_path(work: str | Path, key: str) -> Path:
+    """The run's `Inputs.checkpoint`: where a long DMesh run keeps its resumable state until its outcome is
+    stored. The key hashes the method's code, config and input, so a state only ever resumes its own run."""
+    return Path(work) / "states" / key[:2] / f"{key}.pt"
+
+
+def drop_checkpoint(work: str | Path, key: str) -> None:
+    """Removes the run's checkpoint (its outcome is stored, or will be); missing is fine."""
+    checkpoint_path(work, key).unlink(missing_ok=True)
+
+
 def one_line(exc: BaseException) -> str:
     """`Type: message` on one line, at most 500 characters."""
     msg = " ".join(str(exc).split()) or repr(exc)
@@ -337,7 +355,9 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         inputs = load_inputs(spec, Path(gt_path), work)
         gt = load_gt(gt_path)
         inputs.monitor = gt_monitor(gt)
+        inputs.checkpoint = str(checkpoint_path(work, spec.key))
         result = method.reconstruct(inputs, config)
+        drop_checkpoint(work, spec.key)
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
             raise ValueError("the method returned an empty mesh")
@@ -360,6 +380,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
                 "mesh_path": str(out)}
     except Exception as exc:  # noqa: BLE001 - every failure of a run is a result (stored as failed)
         log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())
+        drop_checkpoint(work, spec.key)  # a failing run starts over when retried
         return {"status": "failed", "error": one_line(exc)}
 
 
@@ -591,6 +612,10 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
             bar.update(1)
 
         def on_done(spec: RunSpec, outcome: dict) -> None:
+            # A checkpoint outlives only a run whose worker died (killed, or the machine stopped): a retry resumes
+            # it. A timed-out run starts over, so a retry does not extend its time limit.
+            if not str(outcome.get("error", "")).startswith("WorkerDied"):
+                drop_checkpoint(work, spec.key)
             if outcome["status"] == "done":
                 mesh_path = outcome["mesh_path"]
                 try:  # store paths relative to the store's folder when possible (movable work folders)

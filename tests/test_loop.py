@@ -103,6 +103,19 @@ def test_resumed_run_continues_identically(tmp_path, interrupt_at):
     assert (resumed.resumed is not None) == (restart > 0) and straight.resumed is None  # (no save before step 2)
 
 
+def test_a_resumed_runs_total_counts_its_interrupted_attempt(tmp_path):
+    path = tmp_path / "state.pt"
+    with pytest.raises(Interrupt):
+        _toy(path, interrupt_at=5)
+    saved = torch.load(path, weights_only=False)["timings"]
+    assert saved["total"] > 0 and saved["total_cpu"] >= 0   # the state carries the time up to its save
+    resumed, _ = _toy(path)
+    assert resumed.earlier_seconds == saved["total"]        # (the toy has no probe)
+    assert resumed.timings["total"] > saved["total"] and resumed.timings["total_cpu"] >= saved["total_cpu"]
+    fresh, _ = _toy()
+    assert fresh.earlier_seconds == 0.0
+
+
 def test_records_timers_and_stage_notifications():
     seen = []
     loop, _ = _toy(steps=3, seen=seen)

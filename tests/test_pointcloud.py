@@ -77,11 +77,46 @@ def test_interrupted_run_resumes(tmp_path):
         reconstruct(pts, nrm, cfg, callback=interrupt, state_path=tmp_path / "s.pt")
     seen = []
     res = reconstruct(pts, nrm, cfg, callback=seen.append, state_path=tmp_path / "s.pt")
-    assert res.info["resumed_from"] == {"phase": 1, "step": 2}
+    resumed_from = res.info["resumed_from"]
+    assert {k: resumed_from[k] for k in ("phase", "step")} == {"phase": 1, "step": 2}
+    assert resumed_from["seconds"] > 0                       # the interrupted attempt's time, up to its save
+    assert res.timings["total"] > resumed_from["seconds"]
     assert [r["step"] for r in seen if r.get("phase") == 1] == [2, 3]
     assert len(res.history) == 6 and len(res.mesh.faces) > 0
     other = reconstruct(pts, nrm, dataclasses.replace(cfg, seed=1), state_path=tmp_path / "s.pt")
     assert "resumed_from" not in other.info                  # another config: starts over
+
+
+def test_the_harness_method_resumes_its_checkpoint(tmp_path):
+    """`DMeshPointCloud` with `Inputs.checkpoint` (the runner's per-run state file): an attempt interrupted
+    mid-phase is resumed from its last save, not restarted, and its time counts the earlier attempt. (The
+    continuation is close to, not equal to, the straight run's: the candidate set restarts empty.)"""
+    from baselines.base import Inputs
+    from baselines.dmesh_pointcloud import DMeshPointCloud
+
+    _, pts, nrm = _shape_cloud("sphere", 5000)
+    pts, nrm = pts.astype(np.float32), nrm.astype(np.float32)
+    cfg = PointCloudConfig.tiny(num_init=150, steps_phase1=4, steps_phase2=2, save_every=2)
+    method, state = DMeshPointCloud(), tmp_path / "run.pt"
+    straight = method.reconstruct(Inputs(points=pts, normals=nrm), cfg)
+
+    class Stop(Exception):
+        pass
+
+    def interrupt(rec):
+        if rec.get("phase") == 1 and rec.get("step") == 3:
+            raise Stop
+
+    with pytest.raises(Stop):  # the attempt the harness would have run, killed after its save at step 2
+        reconstruct(pts, nrm, cfg, callback=interrupt, state_path=state)
+    res = method.reconstruct(Inputs(points=pts, normals=nrm, checkpoint=str(state)), cfg)
+    assert res.info["resumed_from"]["step"] == 2
+    assert res.info["steps"] == straight.info["steps"] == 6  # the saved steps' records came back with the state
+    assert res.info["final_loss"] == pytest.approx(straight.info["final_loss"], rel=0.05)
+    assert len(res.mesh.faces) > 0
+    earlier = res.timings["earlier_attempts"]
+    assert earlier > 0 and res.timings["total"] > earlier
+    assert "earlier_attempts" not in straight.timings
 
 
 def test_native_and_reference_kernels_take_the_same_steps():

@@ -31,13 +31,15 @@ from baselines.base import Method
 
 class FakeHull(Method):
     """Test-only fake: the convex hull of the input points, after `delay` seconds; raises if `fail`;
-    appends its seed to the file `counter` on every call; exits the process hard if `crash`."""
+    appends its seed to the file `counter` on every call; exits the process hard if `crash`. With `save` it
+    writes its checkpoint (`inputs.checkpoint`) first, or resumes an existing one (info "resumed", 5 s of
+    earlier attempts); with `crash_fresh` it exits hard unless it resumed."""
 
     name = "fake_hull"
     input_kind = "pointcloud"
 
     def default_config(self):
-        return {"delay": 0.0, "fail": False, "crash": False, "counter": ""}
+        return {"delay": 0.0, "fail": False, "crash": False, "counter": "", "save": False, "crash_fresh": False}
 
     def _run(self, inputs, cfg, sw):
         import trimesh
@@ -45,6 +47,17 @@ class FakeHull(Method):
         if cfg["counter"]:
             with open(cfg["counter"], "a") as fh:
                 fh.write(f"{inputs.seed}\\n")
+        resumed = False
+        if cfg["save"]:
+            resumed = os.path.exists(inputs.checkpoint)
+            if resumed:
+                sw.timings["earlier_attempts"] = 5.0
+            else:
+                os.makedirs(os.path.dirname(inputs.checkpoint), exist_ok=True)
+                with open(inputs.checkpoint, "w") as fh:
+                    fh.write("state")
+        if cfg["crash_fresh"] and not resumed:
+            os._exit(3)
         time.sleep(float(cfg["delay"]))
         if cfg["crash"]:
             os._exit(3)
@@ -52,7 +65,7 @@ class FakeHull(Method):
             raise RuntimeError("fake failure: boom")
         with sw.stage("hull"):
             mesh = trimesh.convex.convex_hull(np.asarray(inputs.points, np.float64))
-        return mesh, {"steps": 1}
+        return mesh, {"steps": 1, "resumed": resumed}
 '''
 
 
@@ -238,6 +251,34 @@ def test_timeout_and_worker_crash_are_failed_runs(fake, tmp_path):
         errors = sorted(r["error"] for r in store.rows())
     assert errors[0].startswith("Timeout: the run took more than 1.5 s")
     assert errors[1] == "WorkerDied: the worker exited with code 3"
+
+
+def test_checkpoint_outlives_only_a_dead_worker_and_is_resumed(fake, tmp_path):
+    """A run's checkpoint (`Inputs.checkpoint`) stays when its worker dies, so a retry resumes it (its time
+    counts the earlier attempt); it is removed once an outcome is stored: done, raised or timed out."""
+    from eval.runner import RunnerConfig, checkpoint_path, run_sweep
+    from eval.sweep import expand
+
+    work = tmp_path / "work"
+    runner = RunnerConfig(work=str(work))
+    sweep = small_sweep(configs={"fake_hull": [{"save": True, "crash_fresh": True}]})
+    (spec,) = expand(sweep)
+    state = checkpoint_path(work, spec.key)
+    assert run_sweep(sweep, runner).failed == 1
+    assert state.is_file()                                   # the worker died: its state stays
+    assert run_sweep(sweep, RunnerConfig(work=str(work), retry_failed=True)).done == 1
+    assert not state.exists()                                # stored: removed
+    with Store(runner.db_path) as store:
+        (row,) = store.rows()
+    assert row["info_json"]["resumed"] is True
+    assert row["timings_json"]["earlier_attempts"] == 5.0
+    assert row["timings_json"]["total"] >= 5.0               # the earlier attempt's time is counted
+
+    for config, timeout in (({"save": True, "fail": True}, 60.0), ({"save": True, "delay": 30.0}, 1.5)):
+        sweep = small_sweep(configs={"fake_hull": [config]}, timeout_s=timeout)
+        (spec,) = expand(sweep)
+        assert run_sweep(sweep, runner).failed == 1
+        assert not checkpoint_path(work, spec.key).exists()  # a raising or timed-out run starts over
 
 
 def test_resume_after_killed_process(fake, tmp_path):

@@ -152,6 +152,7 @@ class Loop:
         self.history: list = []
         self.resumed: dict | None = None
         self._start = (time.perf_counter(), time.process_time())
+        self._earlier = (0.0, 0.0)  # (wall, CPU) seconds of the resumed state's attempts
 
     def notify(self, record: dict) -> None:
         if self.callback is not None:
@@ -168,19 +169,36 @@ class Loop:
             self.resumed = state
             self.history = list(state["history"])
             self.timings.update(state["timings"])
+            earlier = state["timings"]
+            self._earlier = (float(earlier.get("total", 0.0)), float(earlier.get("total_cpu", 0.0)))
         return state
+
+    def elapsed(self) -> tuple[float, float]:
+        """(wall, process CPU) seconds of this run so far, its interrupted attempts up to their last save
+        included."""
+        return (self._earlier[0] + time.perf_counter() - self._start[0],
+                self._earlier[1] + time.process_time() - self._start[1])
+
+    @property
+    def earlier_seconds(self) -> float:
+        """Wall seconds of the interrupted attempts this run resumed (up to their last save), without their
+        probe's seconds; 0 for a fresh run."""
+        probe = float(self.resumed["timings"].get("probe", 0.0)) if self.resumed is not None else 0.0
+        return max(self._earlier[0] - probe, 0.0)
 
     def save(self, position: dict, opt: BoundedAdam) -> None:
         """Writes the resumable state at `position` ({..., "step": the next step}); no-op without a path."""
         if self.state_path is None:
             return
         p = opt.params
+        wall, cpu = self.elapsed()
         save_state(self.state_path, {
             "fingerprint": self.fingerprint, **position,
             "points": p["points"].detach().clone(), "weights": p["weights"].detach().clone(),
             "reals": p["reals"].detach().clone(),
             "optimizer": opt.state_dict() if position.get("step", 0) > 0 else None,
-            "history": self.history, "timings": dict(self.timings), **self.extra_state()})
+            "history": self.history, "timings": {**self.timings, "total": wall, "total_cpu": cpu},
+            **self.extra_state()})
 
     def run_phase(self, step_fn: Callable[[int], tuple[torch.Tensor, dict]], opt: BoundedAdam, steps: int,
                   start: int = 0, position: dict | None = None, prefix: str = "",
@@ -227,10 +245,9 @@ class Loop:
         return False
 
     def finish(self) -> dict:
-        """Sets "total" (wall seconds) and "total_cpu" (process CPU seconds), summed over resumed runs."""
-        wall, cpu = time.perf_counter() - self._start[0], time.process_time() - self._start[1]
-        for key, now in (("total", wall), ("total_cpu", cpu)):
-            self.timings[key] = now if self.resumed is None else self.timings.get(key, 0.0) + now
+        """Sets "total" (wall seconds) and "total_cpu" (process CPU seconds), the interrupted attempts this run
+        resumed included (`elapsed`)."""
+        self.timings["total"], self.timings["total_cpu"] = self.elapsed()
         return self.timings
 
 

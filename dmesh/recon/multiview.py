@@ -244,7 +244,8 @@ class _Run:
             self.opt.load_state_dict(resumed["optimizer"])
         self.rng.bit_generator.state = resumed["rng"]
         self.info["epochs"], self.best = list(resumed["epochs"]), resumed["best"]
-        self.info["resumed_from"] = {"epoch": epoch, "phase": phase, "step": start}
+        self.info["resumed_from"] = {"epoch": epoch, "phase": phase, "step": start,
+                                     "seconds": self.loop.earlier_seconds}
         log.info("resuming from epoch %d phase %d step %d", epoch, phase, start)
         return epoch, phase, start
 

@@ -152,7 +152,7 @@ class _Run:
             self.opt.load_state_dict(resumed["optimizer"])
         self.chamfer.k = int(resumed["k"])
         self.rng.bit_generator.state = resumed["rng"]
-        info["resumed_from"] = {"phase": phase, "step": start}
+        info["resumed_from"] = {"phase": phase, "step": start, "seconds": self.loop.earlier_seconds}
         log.info("resuming from phase %d step %d", phase, start)
         return phase, start
 
