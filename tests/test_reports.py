@@ -249,6 +249,7 @@ def test_reports_take_the_latest_finished_run_over_a_rerun_left_running(tmp_path
     assert select_runs(df)["key"].tolist() == ["new"]
     only_running = df[df["key"] == "left"]
     assert select_runs(only_running)["key"].tolist() == ["left"]
+    assert tables.table2(only_running, "pointcloud") == []   # no class row of n = 0 for a run still going
 
 
 def test_text_fields_show_empty_for_missing_values():

@@ -95,11 +95,12 @@ def table2(df, input_kind: str) -> list[dict]:
         rows with method, category, n (done runs), failed, cd_p2s, cd_l1, time_s (means over done runs; None
         if none), optional fscore / normal_consistency / normal_consistency_oriented means, the
         `quality_summary` keys, paper_cd_l1 and paper_time_s (None when the paper has no row for the method).
-        Ordered by method, then closed / open / mixed.
+        Ordered by method, then closed / open / mixed. Runs still running (or pending) make no row: a method
+        and class appear once a run of them has finished (done or failed).
     """
     if df is None or len(df) == 0:
         return []
-    sub = df[df["input_kind"] == input_kind]
+    sub = df[(df["input_kind"] == input_kind) & df["status"].isin(["done", "failed"])]
     rows = []
     for (method, clabel), g in sub.groupby(["method", "config_label"], sort=True):
         paper = paper_numbers.table2_row(method, input_kind)
