@@ -293,6 +293,8 @@ class MultiViewConfig(Presets):
     select_best: bool = False        # return the epoch whose mesh renders closest to all the images (with
                                      # init="depth", the start too: info["selected_epoch"] -1)
     depth_tolerance: float | None = None  # keep only faces within this of the captured depth in some view
+    depth_fit: bool = False          # last, the mesh's vertices fitted to the depth maps (not upstream;
+                                     # dmesh.recon.depth_fit)
     orient: bool = True              # output the faces' oriented, closed surface (dmesh.extract.surface)
     save_every: int = 50             # steps between resumable state saves (with a state path)
     kernels: str = "native"          # Delta recomputation: "native" (C++) or "reference" (torch, for checks)
@@ -368,13 +370,14 @@ class MultiViewConfig(Presets):
     def fast(cls, **overrides) -> "MultiViewConfig":
         """The paper's procedure at a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples of
         the previous mesh's Phong-curved faces with all their Voronoi vertices, 150 + 20 steps per epoch of 6
-        views optimised at 128 pixels, the "both" interior rule, the depth-consistency filter and
-        `select_best`. Why each choice: docs/preset_choices.md; accuracy and time: reports/multiview_fast.md."""
+        views optimised at 128 pixels, the "both" interior rule, the depth-consistency filter, `select_best` and
+        the final fit of the vertices to the depth maps (`depth_fit`). Why each choice: docs/preset_choices.md;
+        accuracy and time: reports/multiview_fast.md."""
         base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(150, 150, 150), steps_phase2=(20, 20, 20),
                     lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=128,
                     reseed_phong=0.75,
                     lambda_weight=0.0, real_ramp_steps=10, freeze_phase2=(0,), interior="both", select_best=True,
-                    depth_tolerance=0.02, save_every=10)
+                    depth_tolerance=0.02, depth_fit=True, save_every=10)
         return cls(**{**base, **overrides})
 
     @classmethod
@@ -433,7 +436,8 @@ MULTIVIEW_RECIPES = {
     "fast": (True, "the paper's procedure cut to a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1K and 3K "
                    "samples (on the previous mesh's Phong-curved faces, not upstream), 150 + 20 steps per epoch, "
                    "6 views per step at 128 pixels; interior faces removed by apex and visibility, faces off the "
-                   "captured depth dropped, the epoch whose mesh renders closest to the images kept."),
+                   "captured depth dropped, the epoch whose mesh renders closest to the images kept, then its "
+                   "vertices moved along their normals by a least-squares fit to the depth maps (not upstream)."),
     "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
                      "pixels, then the one-sheet interior rule and the depth filter; no image-loss step."),
     "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "

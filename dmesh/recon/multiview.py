@@ -46,6 +46,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    the capture's resolution, unless `select_best` may pick another. With
    `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
+6. With `depth_fit` (not upstream): the mesh's vertices move along their normals by one least-squares fit
+   of its faces to the captured depth maps (`dmesh.recon.depth_fit`), which undoes the optimisation's
+   inward bias (docs/preset_choices.md). Topology and winding are unchanged.
 
 The extraction rules are `dmesh.extract.filtered_faces` ("apex" is its "no_interior" mode). The steps run
 in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints); this module
@@ -71,6 +74,7 @@ from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.model import DMesh
 from dmesh.probability import dmin
 from dmesh.recon.config import MULTIVIEW_PRESETS as PRESETS, MultiViewConfig
+from dmesh.recon.depth_fit import DepthFitConfig, fit_to_depth
 from dmesh.recon.init import seeds_and_voronoi
 from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
 from dmesh.recon.optim import BoundedAdam
@@ -179,6 +183,7 @@ class _Run:
         """The normalised frame, the box of the points, the targets and the cameras."""
         cfg, vw = self.cfg, self.vw
         self.center, self.scale, w2c, self.eyes = normalisation(vw)
+        self.w2c = w2c
         cam_box = float(np.abs(self.eyes).max(1).min())
         self.box = min(cfg.box, BOX_MARGIN * cam_box)
         h = vw.diffuse.shape[1]
@@ -382,6 +387,12 @@ class _Run:
                 # to either side patch by patch, so sheets turn whole (dmesh.repair.orient_sheets).
                 mesh = surface_of_mesh(mesh, self.pd, towards, SurfaceConfig(seed=cfg.seed, turn_faces=False))
                 info["surface"] = mesh.metadata.pop("surface")
+        if cfg.depth_fit and len(mesh.faces):  # vertices onto the captured depth (dmesh.recon.depth_fit)
+            with self.clock("depth_fit"):
+                verts, info["depth_fit"] = fit_to_depth(mesh.vertices, mesh.faces, self.w2c, vw.fov_y_degrees,
+                                                        vw.depth.astype(np.float64) * self.scale, vw.mask,
+                                                        DepthFitConfig(seed=cfg.seed))
+                mesh.vertices = verts
         mesh.vertices = np.asarray(mesh.vertices) / self.scale + self.center
         info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)), "points": len(self.dm),
                      "interior_removed": removed, "hidden_points": int(self.pd.hidden.sum())})
