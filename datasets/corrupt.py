@@ -31,8 +31,9 @@ Point-cloud settings (composable; every random choice takes the run seed, one in
   point it was displaced from; a scan hit the normal of the triangle it hit), and every outlier gets a random
   unit normal (a stray return has no meaningful normal). "estimated": what a real pipeline has: normals from
   the points themselves (open3d's PCA of the 16 nearest neighbours), oriented toward the camera that saw the
-  point in a scan (outliers: a random camera of the scan), else by open3d's consistent tangent-plane
-  propagation, then flipped as a whole so that most point away from the centroid (outward, for closed shapes).
+  point in a scan (outliers: a random camera of the scan), else by consistent tangent-plane propagation
+  (`orient_by_propagation`, Hoppe et al. 1992), then flipped as a whole so that most point away from the
+  centroid (outward, for closed shapes).
 
 Multi-view settings: ``depth_noise`` (float, 0 = clean): Gaussian noise of this std (times `radius`) on the
 depth of every covered pixel (diffuse and mask unchanged); ``views`` and ``resolution`` (ints): a capture with
@@ -54,7 +55,8 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 __all__ = ["POINTCLOUD_KEYS", "MULTIVIEW_KEYS", "canonical_variant", "variant_kind", "clean_level", "cache_tag",
-           "add_noise", "add_outliers", "subsample", "nonuniform_sample", "estimate_normals", "corrupt_cloud",
+           "add_noise", "add_outliers", "subsample", "nonuniform_sample", "estimate_normals", "orient_by_propagation",
+           "corrupt_cloud",
            "add_depth_noise", "OUTLIER_MARGIN", "NORMAL_K"]
 
 POINTCLOUD_KEYS = ("noise", "outliers", "density", "nonuniform", "scan", "normals")
@@ -273,15 +275,55 @@ def estimate_normals(points: np.ndarray, viewpoints: np.ndarray | None = None, k
     pts = np.asarray(points, np.float64)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(int(k)))
-    if viewpoints is None:
-        pcd.orient_normals_consistent_tangent_plane(int(k))
     nrm = np.asarray(pcd.normals, np.float64).copy()
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    if viewpoints is None:
+        nrm = orient_by_propagation(pts, nrm, k)
     if viewpoints is not None:
         flip = np.einsum("ij,ij->i", nrm, np.asarray(viewpoints, np.float64) - pts) < 0
         nrm[flip] *= -1.0
     elif np.einsum("ij,ij->i", nrm, pts - pts.mean(0)).sum() < 0:
         nrm *= -1.0
+    return nrm
+
+
+def orient_by_propagation(points: np.ndarray, normals: np.ndarray, k: int = NORMAL_K) -> np.ndarray:
+    """(N, 3) `normals` flipped to agree along a minimum spanning tree of the k-nearest-neighbour graph with
+    edge costs 1 - |n_i . n_j| (Hoppe et al. 1992, "consistent tangent planes"); in each connected part the
+    walk starts at its point of largest z, turned to +z, and every point takes its tree parent's side.
+
+    Written with SciPy because Open3D's `orient_normals_consistent_tangent_plane`, the same algorithm, runs for
+    hours on clouds with coplanar parts (isl-org/Open3D#6482; the robustness sweep's flag_box, a box).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64).copy()
+    n = len(pts)
+    if n < 2:
+        return nrm
+    kk = min(int(k) + 1, n)
+    _, nb = cKDTree(pts).query(pts, kk)
+    rows = np.repeat(np.arange(n), kk - 1)
+    cols = nb[:, 1:].reshape(-1)
+    # Costs must be positive for the sparse graph to keep the edge: parallel neighbours cost a tiny epsilon.
+    cost = 1.0 - np.abs(np.einsum("ij,ij->i", nrm[rows], nrm[cols])) + 1e-9
+    graph = coo_matrix((cost, (rows, cols)), shape=(n, n)).tocsr()
+    graph = graph.maximum(graph.T)
+    tree = minimum_spanning_tree(graph)
+    tree = tree + tree.T
+    parts, label = connected_components(tree, directed=False)
+    for part in range(parts):
+        members = np.flatnonzero(label == part)
+        root = members[np.argmax(pts[members, 2])]
+        if nrm[root, 2] < 0:
+            nrm[root] *= -1.0
+        order, parent = breadth_first_order(tree, root, directed=False)
+        for child in order[1:]:  # parents come before their children in breadth-first order
+            if np.dot(nrm[child], nrm[parent[child]]) < 0:
+                nrm[child] *= -1.0
     return nrm
 
 

@@ -110,6 +110,25 @@ def test_estimated_normals_point_outward_on_a_sphere():
     assert (np.einsum("ij,ij->i", est, n) > 0.95).mean() > 0.99
 
 
+def test_estimated_normals_on_a_box_turn_outward_on_every_face():
+    """Coplanar parts (a box's faces) are where Open3D's propagation stalls (isl-org/Open3D#6482); ours turns
+    them all outward. Two boxes side by side are two connected parts, each oriented."""
+    import trimesh
+
+    a = trimesh.creation.box((1.0, 1.0, 1.0))
+    b = trimesh.creation.box((0.5, 0.5, 0.5))
+    b.apply_translation([3.0, 0.0, 0.0])
+    pts, normals = [], []
+    for mesh in (a, b):
+        p, face = trimesh.sample.sample_surface(mesh, 3000, seed=1)
+        pts.append(p)
+        normals.append(mesh.face_normals[face])
+    p, n = np.concatenate(pts), np.concatenate(normals)
+    est = corrupt.estimate_normals(p)
+    agree = np.einsum("ij,ij->i", est, n)
+    assert (agree > 0).mean() > 0.99 and np.median(agree) > 0.99
+
+
 # --------------------------------------------------------------------------------------------------- scans
 
 def _first_hit_distances(mesh, origins, points):
