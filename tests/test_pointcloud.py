@@ -62,6 +62,27 @@ def test_tiny_reconstruction_accuracy(name, limit, tmp_path):
     assert "resumed_from" in again.info and len(again.mesh.faces) == len(res.mesh.faces)
 
 
+def test_outliers_are_dropped_before_the_steps():
+    """`outlier_std` (the `noisy` preset's 2): with 5 % stray points the tiny preset's mesh stays on the
+    sphere, and without the filter the stray points make faces far from it."""
+    gt, pts, nrm = _shape_cloud("sphere", 8000)
+    rng = np.random.default_rng(1)
+    stray = rng.uniform(-1.1, 1.1, size=(400, 3))
+    normals = rng.normal(size=(400, 3))
+    pts2 = np.concatenate([pts, stray])
+    nrm2 = np.concatenate([nrm, normals / np.linalg.norm(normals, axis=1, keepdims=True)])
+    cfg = PointCloudConfig.tiny(steps_phase1=2, steps_phase2=2)
+    raw = reconstruct(pts2, nrm2, cfg)
+    kept = reconstruct(pts2, nrm2, dataclasses.replace(cfg, outlier_std=2.0))
+    assert kept.info["outliers_dropped"] >= 200 and "outliers_dropped" not in raw.info
+    cd_raw, _ = _p2s_and_self_intersections(raw.mesh, gt)
+    cd_kept, _ = _p2s_and_self_intersections(kept.mesh, gt)
+    assert cd_kept < 0.75 * cd_raw                   # measured: 0.0094 against 0.0142 (seeded, deterministic)
+    assert PointCloudConfig.noisy().outlier_std == 2.0 and PointCloudConfig.fast().outlier_std == 0.0
+    with pytest.raises(ValueError, match="outlier_std"):
+        PointCloudConfig(outlier_std=-1.0)
+
+
 def test_interrupted_run_resumes(tmp_path):
     _, pts, nrm = _shape_cloud("sphere", 5000)
     cfg = PointCloudConfig.tiny(num_init=150, steps_phase1=4, steps_phase2=2, save_every=2)

@@ -48,3 +48,18 @@ def test_carving_removes_faces_spanning_holes():
     assert before > 0.01 and added > 0                # the holes are spanned at first ...
     assert after == 0.0 and n_after > 0.95 * n_before  # ... and only those faces go
     assert (reals2[len(reals):] == 0).all() and np.array_equal(pos2[:len(pos)], pos)
+
+
+def test_statistical_inliers_drop_stray_points_and_keep_the_surface():
+    """Uniform stray points in the bounding cube of a dense sphere sample are dropped; the sample stays."""
+    from dmesh.recon.init import statistical_inliers
+
+    rng = np.random.default_rng(0)
+    surface = rng.normal(size=(20_000, 3))
+    surface /= np.linalg.norm(surface, axis=1, keepdims=True)
+    stray = rng.uniform(-1.1, 1.1, size=(1000, 3))
+    stray = stray[np.abs(np.linalg.norm(stray, axis=1) - 1.0) > 0.1]  # really off the surface
+    keep = statistical_inliers(np.concatenate([surface, stray]), std_ratio=2.0)
+    assert (~keep[len(surface):]).mean() > 0.9       # the stray points go
+    assert keep[:len(surface)].mean() > 0.95         # the surface stays (a tail of its own goes)
+    assert statistical_inliers(surface[:1], 2.0).tolist() == [True]

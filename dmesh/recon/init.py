@@ -118,6 +118,22 @@ def carve_far_faces(positions: np.ndarray, reals: np.ndarray, data: np.ndarray, 
     return positions, reals, added
 
 
+def statistical_inliers(points: np.ndarray, std_ratio: float, k: int = 16, workers: int = 1) -> np.ndarray:
+    """(G,) bool: points whose mean distance to their `k` nearest neighbours is at most the mean of those
+    distances plus `std_ratio` standard deviations (statistical outlier removal, as PCL's and Open3D's).
+
+    Written with SciPy's k-d tree because the library does not depend on Open3D (a harness extra)."""
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=np.float64)
+    kk = min(int(k) + 1, len(pts))
+    if kk < 2:
+        return np.ones(len(pts), bool)
+    dist, _ = cKDTree(pts).query(pts, kk, workers=workers)
+    mean = dist[:, 1:].mean(1)
+    return mean <= mean.mean() + float(std_ratio) * mean.std()
+
+
 def poles(pd: wdt.PowerDiagram, n: int) -> np.ndarray:
     """Tets whose circumcentres are the poles of points 0..n-1 of the (unweighted) diagram `pd`.
 
@@ -152,4 +168,4 @@ def _argmax_per_row(rows: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-__all__ = ["seeds_and_voronoi", "poles", "carve_far_faces"]
+__all__ = ["seeds_and_voronoi", "poles", "carve_far_faces", "statistical_inliers"]

@@ -3,6 +3,9 @@
 Letters: G input points, N DMesh points, M scored faces, S samples per step, F output faces.
 
 Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
+0. With `outlier_std` > 0 (not upstream; the `noisy` preset): input points whose mean distance to their 16
+   nearest neighbours is beyond the mean by that many standard deviations are dropped
+   (`dmesh.recon.init.statistical_inliers`); info["outliers_dropped"] counts them.
 1. Normalise the input (mean to the origin, max norm 1); keep `num_target` of the points as the Chamfer
    target; initialise from `num_init` seeds (real) plus their Voronoi vertices in [-1, 1]^3 (imaginary),
    plus the 8 corners of [-1.25, 1.25]^3 (imaginary, also in the seeds' triangulation; they keep it
@@ -38,7 +41,7 @@ from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
 from dmesh.recon.config import POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
-from dmesh.recon.init import carve_far_faces, seeds_and_voronoi
+from dmesh.recon.init import carve_far_faces, seeds_and_voronoi, statistical_inliers
 from dmesh.recon.loop import (Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
@@ -250,12 +253,19 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     """
     cfg = config or PointCloudConfig.paper()
     pts_in, nrm_in = check_points(points, normals)
+    dropped = 0
+    if cfg.outlier_std > 0:  # statistical outliers of the input go first (procedure step 0)
+        keep = statistical_inliers(pts_in, cfg.outlier_std, workers=cfg.workers)
+        dropped = int((~keep).sum())
+        pts_in, nrm_in = check_points(pts_in[keep], None if nrm_in is None else nrm_in[keep])
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
     if cfg.tangent_weight < 1.0 and nrm_in is None:
         raise ValueError("tangent_weight < 1 needs normals")
     run = _Run(pts_in, nrm_in, cfg, callback, state_path, probe)
     info = run.setup(pts_in)
+    if cfg.outlier_std > 0:
+        info["outliers_dropped"] = dropped
     phase, start = run.resume(info)
     if phase == 1:
         run.loop.stage("phase1")
