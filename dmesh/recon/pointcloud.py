@@ -257,7 +257,7 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     if cfg.outlier_std > 0:  # statistical outliers of the input go first (procedure step 0)
         keep = statistical_inliers(pts_in, cfg.outlier_std, workers=cfg.workers)
         dropped = int((~keep).sum())
-        pts_in, nrm_in = check_points(pts_in[keep], None if nrm_in is None else nrm_in[keep])
+        pts_in, nrm_in = pts_in[keep], None if nrm_in is None else nrm_in[keep]  # (already checked)
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
     if cfg.tangent_weight < 1.0 and nrm_in is None:
