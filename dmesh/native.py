@@ -81,6 +81,12 @@ def have_tbb() -> bool:
 PARALLEL_THRESHOLD: int = int(_native.PARALLEL_THRESHOLD)
 
 
+def jet_smooth(points, k: int, degree: int = 2, parallel: int = 0) -> np.ndarray:
+    """(N, 3) float64: each point moved onto the degree-`degree` jet fitted to its `k` nearest neighbours
+    (CGAL's `jet_smooth_point_set`); see `dmesh.recon.init.smooth_points`. ValueError for bad k or degree."""
+    return _native.jet_smooth(as_points(points), int(k), int(degree), int(degree), int(parallel))
+
+
 def tet_neighbors(tets) -> np.ndarray:
     """(T, 4) int32 tet opposite each vertex, or -1 on the hull."""
     return _native.tet_neighbors(as_index(tets, 4, "tets"))

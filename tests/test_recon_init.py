@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dmesh import wdt
 from dmesh.extract import mesh_faces
@@ -63,3 +64,27 @@ def test_statistical_inliers_drop_stray_points_and_keep_the_surface():
     assert (~keep[len(surface):]).mean() > 0.9       # the stray points go
     assert keep[:len(surface)].mean() > 0.95         # the surface stays (a tail of its own goes)
     assert statistical_inliers(surface[:1], 2.0).tolist() == [True]
+
+
+def test_smooth_points_keeps_a_plane_and_denoises_a_sphere_without_shrinking_it():
+    """CGAL's jet smoothing: points on a plane stay where they are (a quadratic jet fits a plane exactly);
+    Gaussian noise on a unit sphere falls several-fold, and the mean radius stays 1 (a plane fit would pull
+    every point inward by about r^2 / 4 for a neighbourhood of radius r)."""
+    from dmesh.recon.init import smooth_points
+
+    rng = np.random.default_rng(0)
+    plane = np.c_[rng.uniform(-1, 1, (3000, 2)), np.zeros(3000)] @ np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    np.testing.assert_allclose(smooth_points(plane, 30), plane, atol=1e-9)
+
+    sphere = rng.normal(size=(20_000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    noisy = sphere + rng.normal(scale=0.01, size=sphere.shape)
+    out = smooth_points(noisy, 60)
+    before = np.abs(np.linalg.norm(noisy, axis=1) - 1).mean()
+    after = np.abs(np.linalg.norm(out, axis=1) - 1).mean()
+    assert after < before / 3, (before, after)
+    assert abs(np.linalg.norm(out, axis=1).mean() - 1.0) < 1e-3
+    np.testing.assert_array_equal(smooth_points(noisy, 60, workers=2), out)  # threads change nothing
+    for k in (5, 20_000):
+        with pytest.raises(ValueError, match="smooth_points: k must be in"):
+            smooth_points(noisy, k)

@@ -88,6 +88,9 @@ class PointCloudConfig(Presets):
     outlier_std: float = 0.0        # > 0: input points whose mean distance to their 16 nearest neighbours exceeds
                                     # the mean by this many standard deviations are dropped first (not upstream;
                                     # dmesh.recon.init.statistical_inliers); 0: off
+    smooth_k: int = 0               # > 0: then every input point is moved onto the quadratic jet fitted to its
+                                    # smooth_k nearest neighbours (not upstream; dmesh.recon.init.smooth_points,
+                                    # CGAL's jet smoothing): denoising for noisy scans; 0: off
     num_init: int = 10_000          # input points used as real seeds
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
     voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
@@ -133,6 +136,9 @@ class PointCloudConfig(Presets):
         for name in ints:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if int(self.smooth_k) != 0 and not 6 <= int(self.smooth_k) <= 1000:
+            raise ValueError(f"PointCloudConfig.smooth_k must be 0 (off) or in [6, 1000] (a quadratic jet has 6 "
+                             f"coefficients), got {self.smooth_k}")
         for name in ("steps_phase1", "steps_phase2", "real_ramp_steps", "knn_interval", "save_every"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -181,19 +187,12 @@ class PointCloudConfig(Presets):
 
     @classmethod
     def noisy(cls, **overrides) -> "PointCloudConfig":
-        """For noisy scans (not upstream): the `fast` start at 10K seeds, then 20 phase-1 steps that move only
-        the positions, at the paper's lr 3e-4 with the paper's 100K target points and samples, then the fast
-        preset's phase 2. The start puts the mesh
-        vertices on noisy samples; the expected Chamfer's steps pull them toward the surface the samples
-        spread around. On clean input the same steps only cost accuracy (the start's vertices already lie on
-        the surface), so `fast` takes none. Stray points would pull the steps towards them, so the input's
-        statistical outliers go first (`outlier_std` 2). Measurements: `python -m eval.bench recipes` and the
-        robustness sweep."""
-        base = dict(outlier_std=2.0, num_init=10_000, voronoi="poles", carve=5.0, max_voronoi=None,
-                    num_target=100_000, num_samples=100_000, steps_phase1=20, steps_phase2=10, lr=3e-4, update_bound=3e-4,
-                    train_phase1=("points",), k_max=16, lambda_weight=0.0, real_ramp_steps=0,
-                    freeze_phase2=(0, 5), save_every=10)
-        return cls(**{**base, **overrides})
+        """For noisy scans (not upstream): the input cleaned first, then the `fast` preset. Statistical outliers
+        go (`outlier_std` 2), then every point moves onto the quadratic jet fitted to its 120 nearest
+        neighbours (`smooth_k`, CGAL's jet smoothing), which takes most of the noise off the surface normal.
+        On clean input the smoothing rounds curved parts and costs accuracy, so `fast` does not smooth.
+        Measurements: `reports/robustness.md` (the robustness sweep); the choice of k: docs/preset_choices.md."""
+        return cls.fast(**{**dict(outlier_std=2.0, smooth_k=120), **overrides})
 
     @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
@@ -224,10 +223,10 @@ POINTCLOUD_RECIPES = {
                     "far from the input carved, then 10 phase-2 steps (reals only) on 50K target points and "
                     "samples, K <= 16, one-sheet extraction. Differs: no position or weight optimisation, 4x the "
                     "seeds, 10 of the paper's 1500 steps."),
-    "noisy": (True, "not in the paper, for noisy scans: statistical outliers of the input dropped (2 standard "
-                    "deviations), the fast start at 10K seeds, 20 phase-1 steps moving only "
-                    "the positions at lr 3e-4 on 100K target points and samples, then the fast preset's 10 phase-2 "
-                    "steps. On clean input it is several times worse than `fast`."),
+    "noisy": (False, "not in the paper, for noisy scans: the input cleaned first (statistical outliers dropped "
+                    "at 2 standard deviations, then every point moved onto the quadratic jet of its 120 nearest "
+                    "neighbours, CGAL's jet smoothing), then the `fast` preset (no phase-1 step). On clean input "
+                    "it is several times worse than `fast`."),
     "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
 }
 

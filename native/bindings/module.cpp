@@ -9,13 +9,15 @@ void bind_argmin(nb::module_& m);
 void bind_delta(nb::module_& m);
 void bind_render(nb::module_& m);
 void bind_chamfer(nb::module_& m);
+void bind_points(nb::module_& m);
 
 NB_MODULE(_native, m) {
-  m.doc() = "DMesh native core (CGAL triangulation, power diagram, argmin searches, renderers, expected Chamfer).";
+  m.doc() = "DMesh native core (CGAL triangulation, power diagram, argmin searches, renderers, expected Chamfer, point smoothing).";
   bind_wdt(m);
   bind_power_diagram(m);
   bind_argmin(m);
   bind_delta(m);
   bind_render(m);
   bind_chamfer(m);
+  bind_points(m);
 }
