@@ -13,6 +13,8 @@ so the same runs give the same bytes.
 
 - `export_store(db, path)` writes it (`dmesh export-store`; `dmesh reproduce-tables` and `dmesh robustness`
   refresh it after their sweeps);
+- `load_export(path, db)` loads it into a store (`dmesh import-store`: a new machine's sweeps then skip every
+  run the export holds, so long sweeps continue across machines from the committed export);
 - `report_store(db, out, work)` is what `--report-only` reads: the SQLite store when there is one, else the
   export under `out` loaded into a temporary store, with mesh paths resolved against the work folder;
 - `keep_tables(out)` restores any table whose CSV had rows before a report pass and has none after it, so a
@@ -106,22 +108,28 @@ def read_export(path: str | Path) -> list[dict]:
     return runs
 
 
-def load_export(path: str | Path, db: str | Path, mesh_root: str | Path | None = None) -> int:
-    """Loads the export `path` into the store `db` (created); returns the number of runs.
+def load_export(path: str | Path, db: str | Path, mesh_root: str | Path | None = None,
+                keep_existing: bool = False) -> int:
+    """Loads the export `path` into the store `db` (created); returns the number of runs loaded.
 
     Mesh paths stored relative to their store's folder are made absolute against `mesh_root` (the work folder
-    whose `meshes/` they name), so renders find the meshes when they exist there."""
+    whose `meshes/` they name), so renders find the meshes when they exist there. With `keep_existing`, runs
+    whose key the store already holds are left as the store has them (`dmesh import-store`)."""
     from eval.store import Store
 
     runs = read_export(path)
+    loaded = 0
     with Store(db) as store:
         for r in runs:
+            if keep_existing and store.status(r["key"]) is not None:
+                continue
+            loaded += 1
             row = {c: r.get(c) for c in EXPORT_COLUMNS if c in r}
             mp = row.get("mesh_path")
             if mesh_root is not None and isinstance(mp, str) and mp and not Path(mp).is_absolute():
                 row["mesh_path"] = str(Path(mesh_root) / mp)
             store.upsert(row)
-    return len(runs)
+    return loaded
 
 
 @contextlib.contextmanager

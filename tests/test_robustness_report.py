@@ -236,3 +236,24 @@ def test_tiny_corrupted_sweep_end_to_end(tmp_path):
     got = _read_csv(tmp_path / "rep" / "robustness.csv")
     assert {(r["corruption"], r["level"]) for r in got} == {("noise", "0"), ("noise", "0.01"), ("outliers", "0"),
                                                             ("outliers", "0.05")}
+
+
+def test_import_store_loads_the_export_and_keeps_what_the_store_has(db, tmp_path, capsys):
+    """`dmesh import-store`: a fresh work folder gets every exported run; a second import adds nothing, and a
+    run the store already holds is not overwritten by the export's."""
+    from eval.cli import main
+
+    export = tmp_path / "runs.jsonl.gz"
+    export_store(db, export)
+    work = tmp_path / "fresh"
+    assert main(["-q", "import-store", "--work", str(work), "-i", str(export)]) == 0
+    assert f"loaded {len(ROWS)} runs" in capsys.readouterr().out
+    with Store(work / "results.sqlite") as s:
+        assert sorted(r["key"] for r in s.rows()) == sorted(r["key"] for r in ROWS)
+        s.upsert({**s.get(ROWS[0]["key"]), "metrics_json": {"cd_p2s": 42.0}})
+    assert main(["-q", "import-store", "--work", str(work), "-i", str(export)]) == 0
+    assert "loaded 0 runs" in capsys.readouterr().out
+    with Store(work / "results.sqlite") as s:
+        assert s.get(ROWS[0]["key"])["metrics_json"] == {"cd_p2s": 42.0}
+    assert main(["-q", "import-store", "--work", str(work), "-i", str(tmp_path / "missing.gz")]) != 0
+    assert "no store export" in capsys.readouterr().err
