@@ -98,12 +98,20 @@ def test_rows_per_method_class_corruption_and_level(db):
     assert {r["category"] for r in bpa} == {"open"} and len(bpa) == 2
 
 
-def test_dmesh_ratio_against_the_best(db):
+def test_dmesh_ratio_against_the_best_other_method(db):
+    """Each DMesh preset against the best of the other methods; a study's overrides get no row of their own."""
+    with Store(db) as s:
+        s.upsert(_row("b3", "dmesh", "torus", "closed", {"noise": 0.005}, 2e-3, config="preset=noisy"))
+        s.upsert(_row("b4", "dmesh", "torus", "closed", {"noise": 0.005}, 1e-3, config="preset=noisy,smooth_k=60"))
     ratios = robustness.dmesh_ratios(robustness.robustness_rows(_df(db)))
-    r = next(x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.005)
-    assert r["best"] == "dmesh" and r["ratio"] == pytest.approx(1.0)
+    at = {x["dmesh"]: x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.005}
+    assert set(at) == {"dmesh", "dmesh [preset=noisy]"}
+    # psr is the best other method at noise 0.005 on the closed class: (5e-3 + 7e-3) / 2
+    assert at["dmesh"]["best"] == "psr" and at["dmesh"]["best_cd_p2s"] == pytest.approx(6e-3)
+    assert at["dmesh"]["ratio"] == pytest.approx(4e-3 / 6e-3)
+    assert at["dmesh [preset=noisy]"]["ratio"] == pytest.approx(2e-3 / 6e-3)
     r0 = next(x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.0)
-    assert r0["best"] == "dmesh" and r0["dmesh_cd_p2s"] == pytest.approx(1.5e-3)
+    assert r0["dmesh_cd_p2s"] == pytest.approx(1.5e-3) and r0["best"] == "psr"
 
 
 def test_budget_rows_hold_configs_and_densities(db):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import html as _html
 import logging
+import re
 from pathlib import Path
 
 from eval.io import write_text
@@ -179,21 +180,34 @@ def budget_rows(df) -> list[dict]:
     return rows
 
 
+#: A DMesh row of the report: the default or a named preset, not a study's overrides (`dmesh [preset=noisy,
+#: smooth_k=60]` is a study; comparing its best level with the others' would pick the winner after the fact).
+_DMESH_PRESET = re.compile(r"^dmesh(_mv)?( \[preset=[a-z_]+\])?$")
+#: Columns of the DMesh-against-the-best table (Markdown and HTML).
+RATIO_COLUMNS = [("input", "input", None), ("category", "class", None), ("corruption", "corruption", None),
+                 ("level", "level", None), ("dmesh", "DMesh", None), ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3),
+                 ("best", "best other method", None), ("best_cd_p2s", "its CD p2s (x1e-3)", 1e3),
+                 ("ratio", "DMesh / best other", 1, ".2f")]
+
+
 def dmesh_ratios(rows: list[dict]) -> list[dict]:
-    """Per input kind, class, corruption and level: the best method's CD p2s and DMesh's, with their ratio
-    (the issue's goal: DMesh within 1.2x of the best)."""
+    """Per input kind, class, corruption, level and DMesh preset: DMesh's CD p2s against the best CD p2s of the
+    other methods, and their ratio (the issue's goal: DMesh within 1.2x of the best; below 1, DMesh is the
+    best). DMesh rows are the default and named presets only (`_DMESH_PRESET`)."""
     out, groups = [], {}
     for r in rows:
         if r["cd_p2s"] is not None:
             groups.setdefault((r["input"], r["category"], r["corruption"], str(r["level"])), []).append(r)
     for (kind, cat, name, _), rs in groups.items():
-        best = min(rs, key=lambda r: r["cd_p2s"])
-        dm = [r for r in rs if r["method"] == "dmesh"]
-        if not dm:
+        others = [r for r in rs if not r["method"].startswith("dmesh")]
+        if not others:
             continue
-        out.append({"input": kind, "category": cat, "corruption": name, "level": rs[0]["level"],
-                    "best": best["method"], "best_cd_p2s": best["cd_p2s"], "dmesh_cd_p2s": dm[0]["cd_p2s"],
-                    "ratio": dm[0]["cd_p2s"] / best["cd_p2s"] if best["cd_p2s"] > 0 else None})
+        best = min(others, key=lambda r: r["cd_p2s"])
+        for dm in sorted((r for r in rs if _DMESH_PRESET.match(r["method"])), key=lambda r: r["method"]):
+            out.append({"input": kind, "category": cat, "corruption": name, "level": rs[0]["level"],
+                        "dmesh": dm["method"], "dmesh_cd_p2s": dm["cd_p2s"], "best": best["method"],
+                        "best_cd_p2s": best["cd_p2s"],
+                        "ratio": dm["cd_p2s"] / best["cd_p2s"] if best["cd_p2s"] > 0 else None})
     return out
 
 
@@ -376,12 +390,10 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
            ""]
     out += [markdown(shown, cols) if rows else "_No runs on corrupted inputs in the store yet._\n"]
     if ratios:
-        out += ["", "## DMesh against the best method (goal: within 1.2x)", "",
-                markdown([{**r, "level": _fmt_level(r["level"])} for r in ratios],
-                         [("input", "input", None), ("category", "class", None), ("corruption", "corruption", None),
-                          ("level", "level", None), ("best", "best method", None),
-                          ("best_cd_p2s", "best CD p2s (x1e-3)", 1e3), ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3),
-                          ("ratio", "DMesh / best", 1, ".2f")])]
+        out += ["", "## DMesh against the best other method (goal: within 1.2x)", "",
+                "Each DMesh preset's CD p2s over the best CD p2s of the other methods on the same inputs; below 1, "
+                "DMesh is the best. Presets only: the rows of studies with other overrides are in the table above.",
+                "", markdown([{**r, "level": _fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS)]
     if budget:
         out += ["", "## Matched budget: CD p2s against output size (clean geometry)", "",
                 markdown(budget, [("input", "input", None), ("method", "method", None),
@@ -420,11 +432,7 @@ def write_robustness(df, out: str | Path, db: str | Path | None = None, work: st
     body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV</a> "
             f"<a href='{bcsv.name}'>budget CSV</a></p>"]
     if ratios:
-        body.append(table_html([{**r, "level": _fmt_level(r["level"])} for r in ratios],
-                               [("input", "input", None), ("category", "class", None),
-                                ("corruption", "corruption", None), ("level", "level", None),
-                                ("best", "best", None), ("best_cd_p2s", "best CD p2s (x1e-3)", 1e3),
-                                ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3), ("ratio", "DMesh / best", 1, ".2f")]))
+        body.append(table_html([{**r, "level": _fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS))
     body += [f"<img src='figures/{p.name}' alt='{_html.escape(p.stem)}'>" for p in figs]
     body += [f"<h3>{_html.escape(t)}</h3><img src='figures/{p.name}' alt='{_html.escape(t)}'>" for t, p in scans]
     return [md, csv, bcsv, *figs, *(p for _, p in scans)], "\n".join(body)
