@@ -549,6 +549,75 @@ def resolve_and_prepare_shapes(sweep: Sweep, work: str | Path, progress=None) ->
     return shapes, gts
 
 
+@dataclasses.dataclass
+class SweepPlan:
+    """What a sweep would run (`plan_sweep`), and how long the stored runs of the same configurations took."""
+
+    name: str = ""
+    total: int = 0
+    stored: int = 0         # done (or failed, without retry_failed): skipped
+    pending: int = 0        # to run
+    known: int = 0          # pending runs with a stored run of the same configuration (any code version)
+    known_s: float = 0.0    # the wall seconds of those stored runs (input preparation, method, metrics)
+
+    def line(self, jobs: int = 1) -> str:
+        """One line for the CLI, e.g. "sweep robustness: 546 runs, 500 stored, 46 to run; 40 of them took
+        1.2 h when stored (0.6 h at 2 jobs), 6 never ran"."""
+        text = f"sweep {self.name}: {self.total} runs, {self.stored} stored, {self.pending} to run"
+        if self.pending:
+            text += (f"; {self.known} of them took {self.known_s / 3600:.2f} h when stored "
+                     f"({self.known_s / 3600 / max(1, jobs):.2f} h at {max(1, jobs)} jobs)")
+            if self.pending > self.known:
+                text += f", {self.pending - self.known} never ran"
+        return text
+
+
+def _wall_s(row: dict) -> float | None:
+    from datetime import datetime
+
+    try:
+        return (datetime.fromisoformat(row["finished_at"]) - datetime.fromisoformat(row["started_at"])).total_seconds()
+    except (TypeError, ValueError):
+        return None
+
+
+def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
+    """What `run_sweep` would run, without running it: the runs stored and pending, and for the pending ones
+    the wall time (start to finish, metrics included) of the latest finished run of the same configuration
+    (method, config overrides, shape, input kind, input settings, seed) of any code version in the store. A time
+    estimate from measured runs: they ran under whatever load the machine had then."""
+    work = Path(runner.work)
+    shapes, _ = resolve_and_prepare_shapes(sweep, work)
+    runs = expand(sweep, shapes)
+    plan = SweepPlan(name=sweep.name, total=len(runs))
+    if not Path(runner.db_path).is_file():  # no store yet: everything is to run, nothing was ever timed
+        plan.pending = len(runs)
+        return plan
+    with Store(runner.db_path) as store:
+        walls: dict[str, tuple[str, float]] = {}
+        for row in store.rows():
+            wall = _wall_s(row) if row["status"] == "done" else None
+            if wall is None:
+                continue
+            ident = json.dumps([row["method"], row["config_label"], row["shape"], row["input_kind"],
+                                row["inputs_json"], int(row["seed"])], sort_keys=True, default=str)
+            if ident not in walls or row["started_at"] > walls[ident][0]:
+                walls[ident] = (row["started_at"], wall)
+        for spec in runs:
+            row = store.get(spec.key)
+            status = None if row is None else row["status"]
+            if status == "done" or (status == "failed" and not runner.retry_failed):
+                plan.stored += 1
+                continue
+            plan.pending += 1
+            ident = json.dumps([spec.method, spec.config_label, spec.shape.id, spec.input_kind, dict(spec.inputs),
+                                int(spec.seed)], sort_keys=True, default=str)
+            if ident in walls:
+                plan.known += 1
+                plan.known_s += walls[ident][1]
+    return plan
+
+
 def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
     """Runs every pending run of `sweep` and stores the outcomes; see the module docstring.
 

@@ -477,3 +477,31 @@ def test_sweep_configs_may_name_a_preset():
     assert cfg == PointCloudConfig.paper(steps_phase1=3) and as_dict["num_init"] == 10_000
     with pytest.raises(ValueError, match="unknown config keys"):
         build_config(get_method("dmesh"), {"preset": "paper", "stepz": 3})
+
+
+def test_plan_counts_stored_runs_and_times_the_rest_by_their_stored_twins(fake, tmp_path, capsys):
+    """`--plan`: nothing runs; runs stored under their key are skipped, a pending run whose configuration ran
+    under other code is timed by that run's wall time, and one that never ran is counted as such."""
+    from eval.cli import main
+    from eval.runner import RunnerConfig, plan_sweep, run_sweep
+
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    assert plan_sweep(small_sweep(seeds=(0, 1)), runner).pending == 2  # no store yet
+    run_sweep(small_sweep(seeds=(0,)), runner)
+    with Store(runner.db_path) as store:  # the stored run as if made by older code, in 90 s
+        row = store.rows()[0]
+        store.delete([row["key"]])
+        store.upsert({**row, "key": "older", "started_at": "2026-01-01T00:00:00+00:00",
+                      "finished_at": "2026-01-01T00:01:30+00:00"})
+    plan = plan_sweep(small_sweep(seeds=(0, 1)), runner)
+    assert (plan.total, plan.stored, plan.pending, plan.known, plan.known_s) == (2, 0, 2, 1, 90.0)
+    assert "1 never ran" in plan.line(2) and "(0.01 h at 2 jobs)" in plan.line(2)
+    run_sweep(small_sweep(seeds=(1,)), runner)
+    assert plan_sweep(small_sweep(seeds=(0, 1)), runner).stored == 1
+    with Store(runner.db_path) as store:
+        before = len(store.rows())
+    assert main(["-q", "bench", "--methods", "fake_hull", "--shapes", "sphere", "--set", "n_points=1500",
+                 "--work", str(tmp_path / "work"), "--plan"]) == 0
+    assert "sweep" in capsys.readouterr().out
+    with Store(runner.db_path) as store:
+        assert len(store.rows()) == before  # nothing ran

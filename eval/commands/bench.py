@@ -34,6 +34,9 @@ def add_sweep_arguments(p: argparse.ArgumentParser, work_default: str) -> None:
                         "one started on this machine); default: $RAY_ADDRESS, else a local Ray of --jobs CPUs")
     p.add_argument("--timeout", type=float, help="per-run wall-clock limit in seconds (default: the sweep's)")
     p.add_argument("--retry-failed", action="store_true", help="rerun runs stored as failed")
+    p.add_argument("--plan", action="store_true",
+                   help="run nothing: print the runs stored and to run, and how long the stored runs of the same "
+                        "configurations (any code version) took")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -116,6 +119,21 @@ def summary_text(db, kinds=None, keys=None) -> str:
     return "\n".join(lines)
 
 
+def print_plans(sweeps, runner) -> int:
+    """`--plan`: one line per sweep (`eval.runner.plan_sweep`) and the total; returns 0."""
+    from eval.runner import plan_sweep
+
+    plans = [plan_sweep(s, runner) for s in sweeps]
+    for plan in plans:
+        print(plan.line(runner.jobs))
+    if len(plans) > 1:
+        known_s, unknown = sum(p.known_s for p in plans), sum(p.pending - p.known for p in plans)
+        print(f"all: {sum(p.pending for p in plans)} runs to run; the stored ones took {known_s / 3600:.2f} h "
+              f"({known_s / 3600 / max(1, runner.jobs):.2f} h at {max(1, runner.jobs)} jobs)"
+              + (f", {unknown} never ran" if unknown else ""))
+    return 0
+
+
 def run(args) -> int:
     from eval.runner import RunnerConfig, run_sweep
 
@@ -123,6 +141,8 @@ def run(args) -> int:
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed, ray_address=args.ray_address)
     check_work(args.work, runner.db_path)
+    if args.plan:
+        return print_plans([sweep], runner)
     if args.report:
         from eval.cli import check_output_dir
 

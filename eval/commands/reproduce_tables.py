@@ -101,6 +101,10 @@ def run(args) -> int:
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed, ray_address=args.ray_address)
     check_work(args.work, runner.db_path)
+    if args.plan:
+        from eval.commands.bench import print_plans
+
+        return print_plans(sweeps, runner)
     keys, kinds = [], []
     for sweep in sweeps:
         summary = run_sweep(sweep, runner)

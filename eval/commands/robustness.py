@@ -66,6 +66,10 @@ def run(args) -> int:
         sweeps = [s for s in (_runnable(s, bool(args.methods)) for s in sweeps) if s is not None]
         if not sweeps:
             raise ValueError("no robustness sweep has runs: check --methods / --inputs and the registered methods")
+        if args.plan:
+            from eval.commands.bench import print_plans
+
+            return print_plans(sweeps, runner)
         keys = []
         for sweep in sweeps:
             summary = run_sweep(sweep, runner)
