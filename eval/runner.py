@@ -572,6 +572,12 @@ class SweepPlan:
         return text
 
 
+def _stored(row: dict | None, retry_failed: bool) -> bool:
+    """Whether a sweep skips the run whose store row is `row`: done, or failed unless failures are retried."""
+    status = None if row is None else row["status"]
+    return status == "done" or (status == "failed" and not retry_failed)
+
+
 def _wall_s(row: dict) -> float | None:
     from datetime import datetime
 
@@ -604,9 +610,7 @@ def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
             if ident not in walls or row["started_at"] > walls[ident][0]:
                 walls[ident] = (row["started_at"], wall)
         for spec in runs:
-            row = store.get(spec.key)
-            status = None if row is None else row["status"]
-            if status == "done" or (status == "failed" and not runner.retry_failed):
+            if _stored(store.get(spec.key), runner.retry_failed):
                 plan.stored += 1
                 continue
             plan.pending += 1
@@ -644,11 +648,10 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
         pending, retry_attempts = [], {}
         for spec in runs:
             row = store.get(spec.key)
-            status = None if row is None else row["status"]
-            if status == "done" or (status == "failed" and not runner.retry_failed):
+            if _stored(row, runner.retry_failed):
                 summary.skipped += 1
                 continue
-            if status == "failed":  # retried only if no other sweep retries it first (Store.claim)
+            if row is not None and row["status"] == "failed":  # retried only if no other sweep retries it first
                 retry_attempts[spec.key] = row["attempts"]
             pending.append(spec)
         log.info("sweep %s: %d runs, %d already stored, %d to run", sweep.name, len(runs), summary.skipped,
