@@ -415,3 +415,19 @@ def test_smoothing_takes_the_noise_out_of_a_noisy_cloud():
     for bad in (3, -1, 5000):
         with pytest.raises(ValueError, match="smooth_k"):
             PointCloudConfig(smooth_k=bad)
+
+
+def test_phase2_ends_once_the_mesh_has_settled():
+    """`phase2_patience`: phase 2 stops after that many steps without a change of the mesh, and the mesh is
+    the one a run of every phase-2 step ends with (here the mesh settles and stays)."""
+    gt, pts, nrm = _shape_cloud("sphere", 8000)
+    cfg = PointCloudConfig.tiny(steps_phase1=2, steps_phase2=40, freeze_phase2=(0,))
+    full = reconstruct(pts, nrm, dataclasses.replace(cfg, phase2_patience=0))
+    short = reconstruct(pts, nrm, dataclasses.replace(cfg, phase2_patience=5))
+    steps = [r for r in short.history if r["phase"] == 2]
+    assert "phase2_settled_at" not in full.info and len([r for r in full.history if r["phase"] == 2]) == 40
+    assert short.info["phase2_settled_at"] == steps[-1]["step"] < 39
+    assert [r["faces"] for r in steps[-6:-1]] == [steps[-7]["faces"]] * 5  # five unchanged steps, then the stop
+    np.testing.assert_array_equal(np.sort(short.mesh.faces, axis=None), np.sort(full.mesh.faces, axis=None))
+    with pytest.raises(ValueError, match="phase2_patience"):
+        PointCloudConfig(phase2_patience=-1)

@@ -101,6 +101,8 @@ class PointCloudConfig(Presets):
     num_samples: int = 100_000      # points sampled on the DMesh per step (two strata of half each)
     steps_phase1: int = 1000        # steps optimising positions, weights and reals
     steps_phase2: int = 500         # steps optimising reals on the frozen tessellation
+    phase2_patience: int = 50       # > 0: phase 2 ends once the mesh (faces whose three reals exceed `threshold`)
+                                    # has not changed for this many steps (not upstream); 0: all steps_phase2
     lr: float = 3e-4                # Adam learning rate (positions, weights; reals: lr / max_real)
     update_bound: float = 3e-4      # per-step bound of each coordinate (reals: update_bound / max_real)
     max_real: float = 3e-3          # upstream's real-value scale (sets the reals' lr and bound)
@@ -139,7 +141,8 @@ class PointCloudConfig(Presets):
         if int(self.smooth_k) != 0 and not 6 <= int(self.smooth_k) <= 1000:
             raise ValueError(f"PointCloudConfig.smooth_k must be 0 (off) or in [6, 1000] (a quadratic jet has 6 "
                              f"coefficients), got {self.smooth_k}")
-        for name in ("steps_phase1", "steps_phase2", "real_ramp_steps", "knn_interval", "save_every"):
+        for name in ("steps_phase1", "steps_phase2", "phase2_patience", "real_ramp_steps", "knn_interval",
+                     "save_every"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("lr", "update_bound", "max_real", "domain", "alpha_wdt", "alpha_real"):
@@ -218,7 +221,8 @@ POINTCLOUD_RECIPES = {
                     "weights, reals) + 500 phase-2 steps (reals), lr 3e-4, 100K target points and samples, K <= 100. "
                     "Differs: the 8 corners of [-1.25, 1.25]^3 are added as imaginary points, the mesh is the "
                     "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
-                    "component; CPU kernels."),
+                    "component; phase 2 ends once the mesh has not changed for 50 steps (upstream: all 500); "
+                    "CPU kernels."),
     "fast": (False, "an initialisation, no phase-1 step: 40K seeds + their poles (not all Voronoi vertices), faces "
                     "far from the input carved, then 10 phase-2 steps (reals only) on 50K target points and "
                     "samples, K <= 16, one-sheet extraction. Differs: no position or weight optimisation, 4x the "

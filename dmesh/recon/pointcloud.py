@@ -19,6 +19,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
 3. Phase 2 (`steps_phase2`): the WDT is computed once and frozen: its faces get Lambda_wdt = 1 and
    Lambda = dmin of their real values; only the reals move, under expected Chamfer + the growth real
    regulariser. At the steps in `freeze_phase2`, points on the current mesh are frozen at real value 1.
+   Once the mesh has not changed for `phase2_patience` steps (not upstream), the phase ends there;
+   info["phase2_settled_at"] is that step.
 4. The mesh: faces of the final WDT whose three real values exceed `threshold` (`extraction`); with
    `orient`, their closed, outward surface (`dmesh.extract.surface`: tets inside / outside, small holes
    filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
@@ -107,6 +109,7 @@ class _Run:
                          extra_state=lambda: {"k": self.chamfer.k, "rng": self.rng.bit_generator.state}, probe=probe)
         self.clock = self.loop.clock
         self.with_normals = cfg.lambda_normal > 0
+        self._phase2_mask, self._phase2_same = None, 0  # the last phase-2 mesh, and the steps it has held
 
     def setup(self, pts_in: np.ndarray) -> dict:
         """Normalises the input, picks the Chamfer target, builds the initial DMesh and the Chamfer term
@@ -211,8 +214,17 @@ class _Run:
                       "candidates": int(len(faces)), "samples": len(samples)}
 
     def phase2_faces(self, step: int) -> dict:
-        """The size of the mesh after the update."""
-        return {"faces": int(mesh_mask(self.dm.reals, self.pd.faces, self.cfg.threshold).sum())}
+        """The size of the mesh after the update; counts the steps since the mesh last changed
+        (`phase2_settled`)."""
+        mask = mesh_mask(self.dm.reals, self.pd.faces, self.cfg.threshold)
+        same = self._phase2_mask is not None and np.array_equal(mask, self._phase2_mask)
+        self._phase2_mask, self._phase2_same = mask, self._phase2_same + 1 if same else 0
+        return {"faces": int(mask.sum())}
+
+    def phase2_settled(self, figures: dict) -> bool:
+        """The `stop` rule of phase 2 (`phase2_patience` > 0): the mesh has not changed for that many steps, so
+        the remaining steps are left out. A resumed phase 2 counts from its resumption."""
+        return 0 < self.cfg.phase2_patience <= self._phase2_same
 
     def extract(self, info: dict) -> PointCloudResult:
         """Procedure step 4: the mesh of the final WDT, mapped back to the input frame."""
@@ -278,8 +290,9 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         start = 0
         run.start_phase2()
     run.freeze_wdt()
-    run.loop.run_phase(run.phase2_step, run.opt, cfg.steps_phase2, start, {"phase": 2}, "phase2_",
-                       after_step=run.phase2_faces)
+    if run.loop.run_phase(run.phase2_step, run.opt, cfg.steps_phase2, start, {"phase": 2}, "phase2_",
+                          after_step=run.phase2_faces, stop=run.phase2_settled):
+        info["phase2_settled_at"] = int(run.loop.history[-1]["step"])
     run.loop.save({"phase": 3, "step": 0}, run.opt)
     return run.extract(info)
 
