@@ -146,6 +146,34 @@ def smooth_points(points: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
     return native.jet_smooth(pts, int(k), degree=2, parallel=1 if workers > 1 else 0)
 
 
+#: `noise_ratio` above which an input looks noisy. On the robustness sweep's 100K-point inputs (6 shapes) clean
+#: clouds measure at most 0.01 (0.08 when thinned to 5K points) and clouds with Gaussian noise of 0.0025 or
+#: more at least 0.115.
+NOISY_RATIO = 0.1
+
+
+def noise_ratio(points: np.ndarray, k: int = 16, workers: int = 1) -> float:
+    """How far the points lie off their local planes, in neighbour spacings: the median over the points of
+    the distance to the least-squares plane of the point and its `k` nearest neighbours, divided by the mean
+    distance to those neighbours. Samples of a smooth surface lie nearly on their planes (a small ratio that
+    grows with curvature and sparsity); noise along the normal lifts it (`NOISY_RATIO`). Written with SciPy and
+    NumPy: the one figure is not in a library the package depends on."""
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < 4:
+        return 0.0
+    k = min(int(k), len(pts) - 1)
+    dist, idx = cKDTree(pts).query(pts, k + 1, workers=workers)
+    nb = pts[idx]
+    centred = nb - nb.mean(1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    off = np.abs(np.einsum("ni,ni->n", centred[:, 0], vecs[:, :, 0]))  # row 0 of each neighbourhood is the point
+    spacing = dist[:, 1:].mean(1)
+    ok = spacing > 0
+    return float(np.median(off[ok] / spacing[ok])) if ok.any() else 0.0
+
+
 def poles(pd: wdt.PowerDiagram, n: int) -> np.ndarray:
     """Tets whose circumcentres are the poles of points 0..n-1 of the (unweighted) diagram `pd`.
 

@@ -8,7 +8,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    (`dmesh.recon.init.statistical_inliers`); info["outliers_dropped"] counts them. With `smooth_k` > 0
    (not upstream; the `noisy` preset) every remaining point then moves onto the quadratic jet fitted to its
    `smooth_k` nearest neighbours (`dmesh.recon.init.smooth_points`, CGAL's jet smoothing), which removes most
-   of the noise along the normal. The seeds and the Chamfer target are the smoothed points.
+   of the noise along the normal. The seeds and the Chamfer target are the smoothed points. Without it, an
+   input that looks noisy (`dmesh.recon.init.noise_ratio` above `NOISY_RATIO`) gets a warning naming the
+   `noisy` preset; info["noise_ratio"] holds the figure either way.
 1. Normalise the input (mean to the origin, max norm 1); keep `num_target` of the points as the Chamfer
    target; initialise from `num_init` seeds (real) plus their Voronoi vertices in [-1, 1]^3 (imaginary),
    plus the 8 corners of [-1.25, 1.25]^3 (imaginary, also in the seeds' triangulation; they keep it
@@ -46,7 +48,8 @@ from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
 from dmesh.recon.config import POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
-from dmesh.recon.init import carve_far_faces, seeds_and_voronoi, smooth_points, statistical_inliers
+from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_and_voronoi, smooth_points,
+                              statistical_inliers)
 from dmesh.recon.loop import (Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
@@ -273,8 +276,13 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         keep = statistical_inliers(pts_in, cfg.outlier_std, workers=cfg.workers)
         dropped = int((~keep).sum())
         pts_in, nrm_in = pts_in[keep], None if nrm_in is None else nrm_in[keep]  # (already checked)
+    noise = noise_ratio(pts_in, workers=cfg.workers)
     if cfg.smooth_k > 0:  # then the noise along the normal (step 0)
         pts_in = smooth_points(pts_in, min(cfg.smooth_k, len(pts_in) - 1), workers=cfg.workers)
+    elif noise > NOISY_RATIO:
+        log.warning("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
+                    "(median; clean samples of smooth surfaces lie under %.2f); the `noisy` preset smooths it first",
+                    noise, NOISY_RATIO)
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
     if cfg.tangent_weight < 1.0 and nrm_in is None:
@@ -283,6 +291,7 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     info = run.setup(pts_in)
     if cfg.outlier_std > 0:
         info["outliers_dropped"] = dropped
+    info["noise_ratio"] = noise
     phase, start = run.resume(info)
     if phase == 1:
         run.loop.stage("phase1")
