@@ -114,6 +114,25 @@ class _Run:
         self.with_normals = cfg.lambda_normal > 0
         self._phase2_mask, self._phase2_same = None, 0  # the last phase-2 mesh, and the steps it has held
 
+    def clean_input(self, pts: np.ndarray, nrm: np.ndarray | None):
+        """Procedure step 0 (stage "clean_input"): statistical outliers dropped, the noise measured, the points
+        smoothed; returns (points, normals, info figures) and keeps the normals of the points kept."""
+        cfg, info = self.cfg, {}
+        with self.clock("clean_input"):
+            if cfg.outlier_std > 0:
+                keep = statistical_inliers(pts, cfg.outlier_std, workers=cfg.workers)
+                info["outliers_dropped"] = int((~keep).sum())
+                pts, nrm = pts[keep], None if nrm is None else nrm[keep]
+            info["noise_ratio"] = noise_ratio(pts, workers=cfg.workers)
+            if cfg.smooth_k > 0:
+                pts = smooth_points(pts, min(cfg.smooth_k, len(pts) - 1), workers=cfg.workers)
+            elif info["noise_ratio"] > NOISY_RATIO:
+                log.warning("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
+                            "(median; clean samples of smooth surfaces lie under %.2f); the `noisy` preset smooths "
+                            "it first", info["noise_ratio"], NOISY_RATIO)
+        self.nrm_in = nrm
+        return pts, nrm, info
+
     def setup(self, pts_in: np.ndarray) -> dict:
         """Normalises the input, picks the Chamfer target, builds the initial DMesh and the Chamfer term
         (procedure step 1) and the phase-1 optimiser; returns the run's first info counts."""
@@ -271,27 +290,14 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     """
     cfg = config or PointCloudConfig.paper()
     pts_in, nrm_in = check_points(points, normals)
-    dropped = 0
-    if cfg.outlier_std > 0:  # statistical outliers of the input go first (procedure step 0)
-        keep = statistical_inliers(pts_in, cfg.outlier_std, workers=cfg.workers)
-        dropped = int((~keep).sum())
-        pts_in, nrm_in = pts_in[keep], None if nrm_in is None else nrm_in[keep]  # (already checked)
-    noise = noise_ratio(pts_in, workers=cfg.workers)
-    if cfg.smooth_k > 0:  # then the noise along the normal (step 0)
-        pts_in = smooth_points(pts_in, min(cfg.smooth_k, len(pts_in) - 1), workers=cfg.workers)
-    elif noise > NOISY_RATIO:
-        log.warning("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
-                    "(median; clean samples of smooth surfaces lie under %.2f); the `noisy` preset smooths it first",
-                    noise, NOISY_RATIO)
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
     if cfg.tangent_weight < 1.0 and nrm_in is None:
         raise ValueError("tangent_weight < 1 needs normals")
-    run = _Run(pts_in, nrm_in, cfg, callback, state_path, probe)
+    run = _Run(pts_in, nrm_in, cfg, callback, state_path, probe)  # its clock and resume key: the raw input
+    pts_in, _, cleaning = run.clean_input(pts_in, nrm_in)
     info = run.setup(pts_in)
-    if cfg.outlier_std > 0:
-        info["outliers_dropped"] = dropped
-    info["noise_ratio"] = noise
+    info.update(cleaning)
     phase, start = run.resume(info)
     if phase == 1:
         run.loop.stage("phase1")
