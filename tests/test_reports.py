@@ -355,3 +355,20 @@ def test_multiview_settings_study_leaves_table2_for_its_own_report(tmp_path):
     assert "refine_seeds" not in table2 and "| dmesh [preset=depth] | closed |" in table2
     assert (tmp_path / "all" / "multiview_fast.md").is_file()
     assert write_mv_settings(df[df["key"] != "c"], tmp_path / "none") == []
+
+
+def test_recipe_rows_say_when_runs_are_older_than_the_recipe():
+    """The recipe text is the current code's: rows whose code version is not the method's current one are
+    counted beside it."""
+    from eval.sweep import code_version, get_method
+
+    now = code_version(get_method("dmesh"))
+    df = pd.DataFrame([
+        {"method": "dmesh", "config_label": "", "input_kind": "pointcloud", "code_version": now},
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": now},
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": "0.1+src.old"},
+    ])
+    rows = {r["method"]: r for r in recipe_rows(df, "pointcloud")}
+    assert "earlier code" not in rows["dmesh"]["recipe"]
+    assert rows["dmesh [preset=paper]"]["recipe"].endswith(
+        "(1 of its 2 runs were made by earlier code of the method, which may predate part of this recipe.)")

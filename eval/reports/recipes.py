@@ -30,16 +30,34 @@ def recipe_rows(df, input_kind: str) -> list[dict]:
         return []
     sub = df[(df["input_kind"] == input_kind) & df["method"].isin(list(methods))]
     rows = []
-    for (method, label), _ in sub.groupby(["method", "config_label"], sort=True):
+    for (method, label), g in sub.groupby(["method", "config_label"], sort=True):
         recipes = methods[method]
         preset, rest = _preset(label)
         steps, text = recipes.get(preset, (None, f"unknown preset {preset!r}"))
         if rest:
             text += f" Overrides: {rest}."
+        older = _older_runs(method, g)
+        if older:
+            text += (f" ({older} of its {len(g)} runs were made by earlier code of the method, which may predate "
+                     f"part of this recipe.)")
         kind = "gradient steps" if steps else ("initialisation" if steps is not None else "?")
         rows.append({"method": method_label(display_name(method, input_kind), label), "preset": preset,
                      "kind": kind, "recipe": text})
     return rows
+
+
+def _older_runs(method: str, runs) -> int:
+    """How many of `runs` (store rows of `method`) carry another code version than the method's sources now:
+    the recipe text is the current code's, so a report says when its rows are older."""
+    if "code_version" not in getattr(runs, "columns", ()):
+        return 0
+    try:
+        from eval.sweep import code_version, get_method
+
+        now = code_version(get_method(method))
+    except (ValueError, OSError):  # an unregistered method or unreadable sources: nothing to compare
+        return 0
+    return int((runs["code_version"] != now).sum())
 
 
 def recipe_markdown(rows: list[dict]) -> str:
