@@ -129,7 +129,8 @@ class _Run:
             elif info["noise_ratio"] > NOISY_RATIO:
                 log.warning("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
                             "(median; clean samples of smooth surfaces lie under %.2f); the `noisy` preset smooths "
-                            "it first", info["noise_ratio"], NOISY_RATIO)
+                            "it first (multi-view `depth`: --set init_preset=noisy)", info["noise_ratio"],
+                            NOISY_RATIO)
         self.nrm_in = nrm
         return pts, nrm, info
 
