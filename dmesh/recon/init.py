@@ -146,9 +146,7 @@ def smooth_points(points: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
     return native.jet_smooth(pts, int(k), degree=2, parallel=1 if workers > 1 else 0)
 
 
-#: `noise_ratio` above which an input looks noisy. On the robustness sweep's 100K-point inputs (6 shapes) clean
-#: clouds measure at most 0.01 (0.08 when thinned to 5K points) and clouds with Gaussian noise of 0.0025 or
-#: more at least 0.115.
+#: `noise_ratio` above which an input looks noisy; calibrated on the robustness inputs (docs/preset_choices.md).
 NOISY_RATIO = 0.1
 
 
