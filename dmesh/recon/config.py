@@ -86,7 +86,8 @@ class PointCloudConfig(Presets):
     PRESETS: ClassVar[tuple] = POINTCLOUD_PRESETS
 
     outlier_std: float = 0.0        # > 0: input points whose mean distance to their 16 nearest neighbours exceeds
-                                    # the mean by this many standard deviations are dropped first (not upstream;
+                                    # the mean by this many standard deviations are dropped first, unless they lie
+                                    # on the surface of their neighbours (not upstream;
                                     # dmesh.recon.init.statistical_inliers); 0: off
     smooth_k: int = 0               # > 0: then every input point is moved onto the quadratic jet fitted to its
                                     # smooth_k nearest neighbours (not upstream; dmesh.recon.init.smooth_points,
@@ -178,24 +179,25 @@ class PointCloudConfig(Presets):
 
     @classmethod
     def fast(cls, **overrides) -> "PointCloudConfig":
-        """A CPU budget, about a minute per shape on 2 cores: 40K seeds and their poles (about 90K points;
+        """A CPU budget, about a minute per shape on 2 cores: stray input points dropped (`outlier_std` 2, a
+        statistical test that keeps sparse stretches of surface), 40K seeds and their poles (about 90K points;
         `dmesh.recon.init`) instead of 10K seeds and all their Voronoi vertices, faces far from the input
         carved (`carve_far_faces`, for holes and open borders), no phase-1 step, 10 phase-2 steps on 50K
         target points and samples, one-sheet extraction (`dmesh.extract`). Why each choice:
         docs/preset_choices.md; why no phase-1 step: `python -m eval.bench recipes`."""
-        base = dict(num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=50_000,
-                    num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16, lambda_weight=0.0,
-                    real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
+        base = dict(outlier_std=2.0, num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None,
+                    num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16,
+                    lambda_weight=0.0, real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
         return cls(**{**base, **overrides})
 
     @classmethod
     def noisy(cls, **overrides) -> "PointCloudConfig":
-        """For noisy scans (not upstream): the input cleaned first, then the `fast` preset. Statistical outliers
-        go (`outlier_std` 2), then every point moves onto the quadratic jet fitted to its 120 nearest
+        """For noisy scans (not upstream): the `fast` preset with its input smoothed. After `fast`'s outlier
+        filter every point moves onto the quadratic jet fitted to its 120 nearest
         neighbours (`smooth_k`, CGAL's jet smoothing), which takes most of the noise off the surface normal.
         On clean input the smoothing rounds curved parts and costs accuracy, so `fast` does not smooth.
         Measurements: `reports/robustness.md` (the robustness sweep); the choice of k: docs/preset_choices.md."""
-        return cls.fast(**{**dict(outlier_std=2.0, smooth_k=120), **overrides})
+        return cls.fast(**{**dict(smooth_k=120), **overrides})
 
     @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
@@ -223,14 +225,14 @@ POINTCLOUD_RECIPES = {
                     "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
                     "component; phase 2 ends once the mesh has not changed for 50 steps (upstream: all 500); "
                     "CPU kernels."),
-    "fast": (False, "an initialisation, no phase-1 step: 40K seeds + their poles (not all Voronoi vertices), faces "
-                    "far from the input carved, then 10 phase-2 steps (reals only) on 50K target points and "
-                    "samples, K <= 16, one-sheet extraction. Differs: no position or weight optimisation, 4x the "
-                    "seeds, 10 of the paper's 1500 steps."),
-    "noisy": (False, "not in the paper, for noisy scans: the input cleaned first (statistical outliers dropped "
-                    "at 2 standard deviations, then every point moved onto the quadratic jet of its 120 nearest "
-                    "neighbours, CGAL's jet smoothing), then the `fast` preset (no phase-1 step). On clean input "
-                    "it is several times worse than `fast`."),
+    "fast": (False, "an initialisation, no phase-1 step: stray input points dropped (not upstream), 40K seeds + "
+                    "their poles (not all Voronoi vertices), faces far from the input carved, then 10 phase-2 steps "
+                    "(reals only) on 50K target points and samples, K <= 16, one-sheet extraction. Differs: no "
+                    "position or weight optimisation, 4x the seeds, 10 of the paper's 1500 steps."),
+    "noisy": (False, "not in the paper, for noisy scans: the `fast` preset (no phase-1 step) with its input "
+                     "smoothed after the outlier filter (every point moved onto the quadratic jet of its 120 "
+                     "nearest neighbours, CGAL's jet smoothing). On clean input it is several times worse than "
+                     "`fast`."),
     "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
 }
 

@@ -118,20 +118,50 @@ def carve_far_faces(positions: np.ndarray, reals: np.ndarray, data: np.ndarray, 
     return positions, reals, added
 
 
-def statistical_inliers(points: np.ndarray, std_ratio: float, k: int = 16, workers: int = 1) -> np.ndarray:
-    """(G,) bool: points whose mean distance to their `k` nearest neighbours is at most the mean of those
-    distances plus `std_ratio` standard deviations (statistical outlier removal, as PCL's and Open3D's).
+#: A neighbourhood counts as a piece of surface when its smallest PCA eigenvalue is under this share of the sum.
+SURFACE_VARIATION = 0.03
+#: ... and a point lies on that surface when it is within this many of the neighbours' spacings of its plane.
+ON_SURFACE = 0.35
+#: ... and is as dense as they are when its mean neighbour distance is at most this many times their median.
+AS_DENSE = 3.0
 
-    Written with SciPy's k-d tree because the library does not depend on Open3D (a harness extra)."""
+
+def statistical_inliers(points: np.ndarray, std_ratio: float, k: int = 16, workers: int = 1,
+                        keep_surface: bool = True) -> np.ndarray:
+    """(G,) bool: the points kept by statistical outlier removal (as PCL's and Open3D's), with surface samples
+    rescued.
+
+    The distance test flags points whose mean distance to their `k` nearest neighbours is more than the mean of
+    those distances plus `std_ratio` standard deviations. Alone it also flags the sparsest few percent of any
+    clean sample, and whole regions of a scan where rays graze the surface: the holes it leaves there are what
+    carving then opens. So with `keep_surface`, a flagged point stays when its neighbours (without it) form a
+    piece of surface (`SURFACE_VARIATION`), it lies on that piece (`ON_SURFACE`) and it is about as dense as
+    they are (`AS_DENSE`): a sample of a sparse stretch of surface, not a stray point near one. How much each
+    rule drops on the robustness inputs: docs/preset_choices.md.
+
+    Written with SciPy's k-d tree and NumPy because the library does not depend on Open3D (a harness extra),
+    whose filters have no such rescue."""
     from scipy.spatial import cKDTree
 
     pts = np.asarray(points, dtype=np.float64)
     kk = min(int(k) + 1, len(pts))
     if kk < 2:
         return np.ones(len(pts), bool)
-    dist, _ = cKDTree(pts).query(pts, kk, workers=workers)
+    dist, idx = cKDTree(pts).query(pts, kk, workers=workers)
     mean = dist[:, 1:].mean(1)
-    return mean <= mean.mean() + float(std_ratio) * mean.std()
+    keep = mean <= mean.mean() + float(std_ratio) * mean.std()
+    flagged = np.flatnonzero(~keep)
+    if not keep_surface or kk < 4 or len(flagged) == 0:
+        return keep
+    nb = pts[idx[flagged, 1:]]
+    centre = nb.mean(1, keepdims=True)
+    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb - centre, nb - centre))
+    variation = vals[:, 0] / np.maximum(vals.sum(1), np.finfo(float).tiny)
+    off = np.abs(np.einsum("ni,ni->n", pts[flagged] - centre[:, 0], vecs[:, :, 0]))
+    spacing = np.median(mean[idx[flagged, 1:]], axis=1)  # the neighbours' own mean neighbour distance
+    on = (variation < SURFACE_VARIATION) & (off < ON_SURFACE * spacing) & (mean[flagged] <= AS_DENSE * spacing)
+    keep[flagged[on]] = True
+    return keep
 
 
 def smooth_points(points: np.ndarray, k: int, workers: int = 1) -> np.ndarray:

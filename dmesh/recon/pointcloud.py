@@ -3,9 +3,10 @@
 Letters: G input points, N DMesh points, M scored faces, S samples per step, F output faces.
 
 Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
-0. With `outlier_std` > 0 (not upstream; the `noisy` preset): input points whose mean distance to their 16
-   nearest neighbours is beyond the mean by that many standard deviations are dropped
-   (`dmesh.recon.init.statistical_inliers`); info["outliers_dropped"] counts them. With `smooth_k` > 0
+0. With `outlier_std` > 0 (not upstream; the `fast` and `noisy` presets): input points whose mean distance to their 16
+   nearest neighbours is beyond the mean by that many standard deviations are dropped, unless they lie on the
+   surface their neighbours form (sparse surface samples, as where a scanner's rays graze;
+   `dmesh.recon.init.statistical_inliers`); info["outliers_dropped"] counts them. With `smooth_k` > 0
    (not upstream; the `noisy` preset) every remaining point then moves onto the quadratic jet fitted to its
    `smooth_k` nearest neighbours (`dmesh.recon.init.smooth_points`, CGAL's jet smoothing), which removes most
    of the noise along the normal. The seeds and the Chamfer target are the smoothed points. Without it, an
