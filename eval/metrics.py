@@ -26,8 +26,12 @@ nearest point of the sample set S; dist(x, M): exact distance from x to the tria
 - `normal_consistency_oriented` = (mean_g n_g . n_pred(c_g) + mean_p n_p . n_gt(c_p)) / 2, signed, with c_x the
   exact closest point of x on the other mesh (the `cd_p2s` queries); `oriented_fraction` = area-weighted share
   of predicted faces whose normal has a positive dot product with the normal of the GT face closest to the
-  face's centroid. Both compare against the GT oriented outward (`datasets.meshes.orient_outward`) and are NaN
-  for a GT that cannot be oriented (`gt_orientable` False).
+  face's centroid; `oriented_fraction_any_side` = the same share once each open piece of the prediction (faces
+  joined through two-face edges, with a one-face edge somewhere) takes whichever side agrees more. The side of
+  an open sheet is a convention that some inputs do not carry: two-sided shading, depth and masks look the
+  same from either side, so from multi-view images only the consistency of a sheet's winding and the outward
+  side of closed pieces can be asked for. All three compare against the GT oriented outward
+  (`datasets.meshes.orient_outward`) and are NaN for a GT that cannot be oriented (`gt_orientable` False).
 
 Topology (`topology`): boundary edges and loops, non-manifold edges and vertices, components, watertightness,
 winding consistency, Euler characteristic and genus, for the prediction and (prefixed `gt_`) the GT.
@@ -470,7 +474,8 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 def _orientation_metrics(pv, pf, gv, gf, samples_g, samples_p, face_g, face_p, gt_index) -> dict:
-    """Signed normal agreement with the GT: `normal_consistency_oriented` and `oriented_fraction`.
+    """Signed normal agreement with the GT: `normal_consistency_oriented`, `oriented_fraction` and
+    `oriented_fraction_any_side` (module docstring).
 
     Args: the prediction (pv, pf) and GT (gv, gf) in the GT frame; samples_g / samples_p: (N, 3) sample
         normals of each; face_g: (N,) the prediction face nearest each GT sample, face_p: (N,) the GT face
@@ -482,7 +487,32 @@ def _orientation_metrics(pv, pf, gv, gf, samples_g, samples_p, face_g, face_p, g
     _, face_c, _ = gt_index.query(pv[pf].mean(axis=1))           # GT face nearest each prediction centroid
     area = _area(pv, pf)
     agree = np.einsum("fc,fc->f", npf, ngf[face_c]) > 0
-    return {"normal_consistency_oriented": nc, "oriented_fraction": float(area[agree].sum() / area.sum())}
+    comp, is_open = _sheets(pf)
+    n = len(is_open)
+    right, total = np.bincount(comp, area * agree, n), np.bincount(comp, area, n)
+    any_side = np.where(is_open, np.maximum(right, total - right), right)
+    return {"normal_consistency_oriented": nc, "oriented_fraction": float(area[agree].sum() / area.sum()),
+            "oriented_fraction_any_side": float(any_side.sum() / total.sum())}
+
+
+def _sheets(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pieces of surface of a face list: ((F,) component of each face, (C,) bool whether it is open).
+
+    Faces are joined through edges that exactly two faces use, whatever their winding (so a piece wound
+    inconsistently stays one piece); a piece is open when one of its edges belongs to it alone.
+    """
+    F = len(f)
+    sides = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    nv = int(f.max()) + 1
+    _, edge_of, counts = np.unique(sides[:, 0] * nv + sides[:, 1], return_inverse=True, return_counts=True)
+    edge_of = edge_of.ravel()
+    face_of = np.repeat(np.arange(F), 3)
+    order = np.argsort(edge_of, kind="stable")
+    pairs = order[(counts[edge_of] == 2)[order]].reshape(-1, 2)   # the two sides of each two-face edge
+    _, comp = _n_components(F, face_of[pairs[:, 0]], face_of[pairs[:, 1]])
+    on_boundary = np.bincount(face_of, counts[edge_of] == 1, F) > 0
+    is_open = np.bincount(comp, on_boundary, comp.max() + 1) > 0
+    return comp, is_open
 
 
 def _gt_figures(gt) -> tuple[object, dict]:
@@ -535,7 +565,9 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
         figure, whose pairs are nearest samples),
         "oriented_fraction": area-weighted fraction of the prediction's faces whose normal points the same way
         (positive dot product) as the GT face closest to the face's centroid, in [0, 1];
-        both oriented figures are NaN when the GT is not orientable (see gt_orientation),
+        "oriented_fraction_any_side": the same with each open piece of the prediction on its better side
+        (closed pieces must face outward; module docstring), in [0.5, 1] per open piece;
+        the oriented figures are NaN when the GT is not orientable (see gt_orientation),
         "gt_orientation": the GT's `orient_outward` status ("outward", "flipped", "open", "inconsistent",
         "non_orientable"), "gt_orientable": False for the last two,
         "gt_watertight", "gt_boundary_edges", "gt_non_manifold_edges", "gt_components",
@@ -555,7 +587,7 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
                     "cd_p2s": math.inf, "cd_p2s_gt_to_pred": math.inf, "cd_p2s_pred_to_gt": math.inf,
                     "cd_l2_ndc": math.inf, "f_score": 0.0, "precision": 0.0, "recall": 0.0,
                     "normal_consistency": math.nan, "normal_consistency_oriented": math.nan,
-                    "oriented_fraction": math.nan})
+                    "oriented_fraction": math.nan, "oriented_fraction_any_side": math.nan})
     else:
         from eval.closest_point import make_index
 
@@ -573,7 +605,8 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
         else:
             log.info("GT is %s: oriented normal figures are NaN (only the unsigned one applies)",
                      gt_figures["gt_orientation"].replace("_", "-"))
-            out.update({"normal_consistency_oriented": math.nan, "oriented_fraction": math.nan})
+            out.update({"normal_consistency_oriented": math.nan, "oriented_fraction": math.nan,
+                        "oriented_fraction_any_side": math.nan})
     out.update(gt_figures)
     import trimesh
 

@@ -336,6 +336,23 @@ def gt_monitor(gt):
     return monitor
 
 
+def score(mesh, gt, inputs: dict, info: dict | None) -> dict:
+    """The stored metrics of a run's mesh: `eval.metrics.compute_metrics` with the sweep's sample count, plus
+    the `metrics_version` of the code that computed them (`dmesh rescore` recomputes older ones).
+
+    Args: mesh, gt: trimesh meshes; inputs: the run's input settings (`metric_samples`); info: the method's
+    info. Mesh to DMesh: a method whose output keeps the GT vertices first says how many in its info
+    ("re_fp_vertices"), which adds RE / FP to the metrics (Table 1).
+    """
+    from eval.metrics import compute_metrics
+    from eval.sweep import metrics_version
+
+    k = (info or {}).get("re_fp_vertices")
+    metrics = compute_metrics(mesh, gt, n=int(inputs.get("metric_samples", 100_000)), seed=0,
+                              **({"re_fp_vertices": int(k)} if k is not None else {}))
+    return {**metrics, "metrics_version": metrics_version()}
+
+
 def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=None) -> dict:
     """Runs one run in this process and returns its outcome (never raises for a failing method).
 
@@ -365,13 +382,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
             raise ValueError("the method returned a mesh with NaN or inf vertices")
         out = mesh_path_for(work, spec.key)
         write_mesh(mesh, out)
-        from eval.metrics import compute_metrics
-
-        # Mesh to DMesh: a method whose output keeps the GT vertices first says how many in its info
-        # ("re_fp_vertices"), which adds RE / FP to the metrics (Table 1).
-        k = (result.info or {}).get("re_fp_vertices")
-        metrics = compute_metrics(mesh, gt, n=int(spec.inputs.get("metric_samples", 100_000)),
-                                  seed=0, **({"re_fp_vertices": int(k)} if k is not None else {}))
+        metrics = score(mesh, gt, spec.inputs, result.info)
         timings = {k: float(v) for k, v in dict(result.timings).items()}
         if "total" not in timings:
             raise ValueError("the method's timings lack 'total'")

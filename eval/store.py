@@ -373,6 +373,12 @@ class Store:
                     " under another sweep's lease" if current == "running" else "", status)
         return False
 
+    def set_metrics(self, key: str, metrics: dict) -> bool:
+        """Replaces the metrics of the done run `key` (a rescore of its stored mesh); False if it is not done."""
+        with self._tx():
+            return self._conn.execute("UPDATE runs SET metrics_json=? WHERE key=? AND status='done'",
+                                      (_json(metrics), key)).rowcount == 1
+
     def delete(self, keys: Iterable[str]) -> int:
         """Deletes the given runs; returns how many were removed."""
         keys = list(keys)

@@ -435,7 +435,10 @@ def resolve_shape(spec: str, data_root: str | Path | None = None) -> ShapeRef:
 
 #: Modules every run depends on besides its method: the GT and input generation and the metrics.
 INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.sampling",
-                 "datasets.capture", "datasets.corrupt", "datasets.scan", "eval.metrics", "eval.closest_point")
+                 "datasets.capture", "datasets.corrupt", "datasets.scan")
+#: The metrics of a run. Not in its key: a stored mesh is scored again under new metric code without
+#: rerunning its method (`dmesh rescore`); each run's metrics carry the `metrics_version` that made them.
+METRIC_MODULES = ("eval.metrics", "eval.closest_point")
 #: Packages of this repository whose modules a run's code version follows through imports.
 PROJECT_PACKAGES = ("dmesh", "baselines", "datasets", "eval")
 #: The native sources, which a run depends on when its closure imports `dmesh.native`.
@@ -537,9 +540,9 @@ def module_closure(roots: tuple[str, ...], root: str) -> tuple[str, ...]:
 
 def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
     """The sources a method's results depend on: its own `code_trees` attribute if it has one, else the files of
-    its module and of the project modules it imports (`module_closure`), plus the input generation and the
-    metrics (`INPUT_MODULES`). So editing one baseline, or the harness around the runs, reruns no other
-    method's stored runs."""
+    its module and of the project modules it imports (`module_closure`), plus the input generation
+    (`INPUT_MODULES`). So editing one baseline, or the harness around the runs, reruns no other method's stored
+    runs; editing the metrics reruns nothing (`metrics_version`)."""
     own = getattr(method, "code_trees", None)
     if own:
         return tuple(own)
@@ -547,6 +550,11 @@ def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
                getattr(getattr(method, "reconstruct", None), "__module__", "") or ""}
     roots = tuple(sorted(m for m in modules if m and m != "builtins")) + INPUT_MODULES
     return module_closure(roots, str(root))
+
+
+def metrics_version(root: str | Path = REPO) -> str:
+    """The first 16 hex digits of the hash of the metric code (`METRIC_MODULES` and what they import)."""
+    return source_hash(module_closure(METRIC_MODULES, str(root)), root)[:16]
 
 
 def code_version(method, root: str | Path = REPO) -> str:

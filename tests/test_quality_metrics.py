@@ -74,6 +74,36 @@ def test_oriented_fraction_is_the_area_of_the_faces_that_agree(sphere):
     assert m["genus"] == 0                                        # still an orientable sphere, wound badly
 
 
+def test_any_side_frees_the_side_of_open_pieces_only(sphere):
+    # GT: a closed sphere and, beside it, an open tube. The tube's side is a convention (the any-side figure
+    # lets each open piece take its better side); the sphere's is not (it must face outward).
+    tube = _open_cylinder(32)
+    tube = trimesh.Trimesh(tube.vertices + [4.0, 0.0, 0.0], tube.faces, process=False)
+    gt = trimesh.util.concatenate([sphere, tube])
+    a_sphere, a_tube = sphere.area, tube.area
+    both = a_sphere + a_tube
+
+    def pred(sphere_faces, tube_faces):
+        return trimesh.Trimesh(gt.vertices, np.vstack([sphere_faces, tube_faces + len(sphere.vertices)]),
+                               process=False)
+
+    m = compute_metrics(pred(sphere.faces, tube.faces[:, ::-1]), gt, n=5000, self_intersections=False)
+    assert m["oriented_fraction"] == pytest.approx(a_sphere / both, abs=1e-9)
+    assert m["oriented_fraction_any_side"] == pytest.approx(1.0, abs=1e-9)
+    m = compute_metrics(pred(sphere.faces[:, ::-1], tube.faces), gt, n=5000, self_intersections=False)
+    assert m["oriented_fraction"] == pytest.approx(a_tube / both, abs=1e-9)
+    assert m["oriented_fraction_any_side"] == pytest.approx(a_tube / both, abs=1e-9)
+    # Half of the tube reversed: one piece (the two halves share two-face edges), wound inconsistently, so
+    # no choice of side puts more than its larger half right.
+    up = tube.triangles_center[:, 2] > 0.3
+    tf = tube.faces.copy()
+    tf[up] = tf[up][:, ::-1]
+    m = compute_metrics(pred(sphere.faces, tf), gt, n=5000, self_intersections=False)
+    larger = max(tube.area_faces[up].sum(), tube.area_faces[~up].sum())
+    assert m["oriented_fraction_any_side"] == pytest.approx((a_sphere + larger) / both, abs=1e-9)
+    assert m["oriented_fraction_any_side"] < 0.99
+
+
 def test_inside_out_gt_is_flipped_inside_compute_metrics(sphere):
     m = compute_metrics(sphere, _inverted(sphere), n=5000, self_intersections=False)
     assert m["gt_orientation"] == "flipped" and m["gt_orientable"] is True
@@ -203,11 +233,13 @@ def test_quality_columns_in_table2(tmp_path):
                 "seed": 0, "status": "done", "gt_hash": "0" * 64, "code_version": "test",
                 "metrics_json": {"cd_p2s": 1e-3, "cd_l1": 2e-3, **metrics}, "timings_json": {"total": 1.0}}
 
-    good = {"normal_consistency_oriented": 0.98, "oriented_fraction": 1.0, "watertight": True,
+    good = {"normal_consistency_oriented": 0.98, "oriented_fraction": 1.0, "oriented_fraction_any_side": 1.0,
+            "watertight": True,
             "non_manifold_edges": 0, "non_manifold_vertices": 0, "boundary_edges": 0, "components": 1,
             "gt_components": 1, "genus": 1, "gt_genus": 1, "self_intersecting_faces": 0, "winding_consistent": True}
     # consistently wound but facing the other way in part (an open sheet whose side was not observable)
-    bad = {**good, "normal_consistency_oriented": 0.2, "oriented_fraction": 0.6, "watertight": False,
+    bad = {**good, "normal_consistency_oriented": 0.2, "oriented_fraction": 0.6, "oriented_fraction_any_side": 0.9,
+           "watertight": False,
            "non_manifold_edges": 4, "non_manifold_vertices": 6, "boundary_edges": 10, "genus": None,
            "self_intersecting_faces": -1}
     with Store(tmp_path / "s.sqlite") as s:
@@ -217,10 +249,11 @@ def test_quality_columns_in_table2(tmp_path):
     (r,) = tables.table2(df, "pointcloud")
     assert r["normal_consistency_oriented"] == pytest.approx(0.59)
     assert (r["oriented_fraction"], r["oriented_fraction_min"]) == (pytest.approx(0.8), 0.6)
+    assert (r["oriented_fraction_any_side"], r["oriented_fraction_any_side_min"]) == (pytest.approx(0.95), 0.9)
     assert (r["watertight_share"], r["no_nm_edges_share"], r["topology_match_share"]) == (0.5, 0.5, 0.5)
     assert r["winding_share"] == 1.0
     assert (r["non_manifold_edges"], r["boundary_edges"], r["self_intersecting_faces"]) == (2.0, 5.0, 0.0)
     md, _ = tables.write_table2(df, tmp_path / "rep", "pointcloud")
     text = md.read_text()
-    assert "## Mesh quality by class" in text and "| psr | closed | 2 | 0.590 | 80.0 | 60.0 | 100 | 50 | 50 |" in text
+    assert "## Mesh quality by class" in text and "| psr | closed | 2 | 0.590 | 80.0 | 60.0 | 95.0 | 90.0 | 100 | 50 | 50 |" in text
     assert "## Runs: mesh quality" in text and "| 1 (GT 1) | - (GT 1) |" in text

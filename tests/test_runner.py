@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+import trimesh
 
 from eval.store import Store
 from eval.sweep import Sweep, resolve_shape, run_key, source_hash
@@ -121,18 +122,20 @@ def test_source_hash_changes_with_the_code(tmp_path):
 
 
 def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
-    """Keys hash the method's module and what it imports (plus inputs and metrics): editing one baseline
+    """Keys hash the method's module and what it imports (plus the inputs, not the metrics): editing one baseline
     changes its own code version and no other method's; DMesh methods follow the library and native code."""
     import shutil
 
-    from eval.sweep import REPO, _source_hash, code_version, get_method, method_trees, module_closure
+    from eval.sweep import (REPO, _source_hash, code_version, get_method, method_trees, metrics_version,
+                            module_closure)
 
     psr, bpa, dm = get_method("psr"), get_method("bpa"), get_method("dmesh")
     assert "baselines/psr.py" in method_trees(psr) and "baselines/bpa.py" not in method_trees(psr)
     # psr follows the input generation (the capture's camera maths is dmesh/camera.py), not the DMesh procedures
     assert not any(t.startswith(("dmesh/recon/", "dmesh/probability")) or t == "native" for t in method_trees(psr))
     assert {"dmesh/recon/pointcloud.py", "dmesh/losses/chamfer.py", "native"} <= set(method_trees(dm))
-    assert {"datasets/synthetic.py", "eval/metrics.py"} <= set(method_trees(psr))
+    assert "datasets/synthetic.py" in method_trees(psr)
+    assert not any("eval/metrics.py" in method_trees(m) for m in (psr, bpa, dm))  # metrics: metrics_version
 
     for pkg in ("dmesh", "baselines", "datasets", "eval"):
         shutil.copytree(Path(REPO) / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
@@ -148,6 +151,14 @@ def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
         f.write("\n# an edit\n")
     _source_hash.cache_clear()
     assert all(code_version(m, tmp_path) != after[m.name] for m in (psr, bpa, dm))
+    # An edit of the metrics reruns no method: it changes the metrics version only (`dmesh rescore`).
+    versions = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
+    scored = metrics_version(tmp_path)
+    with open(tmp_path / "eval" / "metrics.py", "a") as f:
+        f.write("\n# an edit\n")
+    _source_hash.cache_clear()
+    assert {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)} == versions
+    assert metrics_version(tmp_path) != scored
 
 
 def test_sweep_yaml_round_trip_and_validation(tmp_path):
@@ -383,6 +394,35 @@ def test_bench_cli_end_to_end_in_process(fake, tmp_path, capsys):
     assert (rep / "index.html").is_file() and (rep / "table2_pointcloud.csv").is_file()
     assert main(args) == 0
     assert "0 done now, 0 failed now, 4 already stored" in capsys.readouterr().out
+
+
+def test_rescore_recomputes_old_metrics_from_the_stored_mesh(fake, tmp_path, capsys):
+    from eval.cli import main
+    from eval.metrics import compute_metrics
+    from eval.runner import RunnerConfig, load_gt, run_sweep
+    from eval.sweep import metrics_version
+
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    run_sweep(small_sweep(seeds=(0, 1)), runner)
+    with Store(runner.db_path) as store:
+        rows = store.rows()
+        assert all(r["metrics_json"]["metrics_version"] == metrics_version() for r in rows)
+        # One run scored by older metric code (a wrong figure, an old version, a metric it lacked).
+        old = {**rows[0]["metrics_json"], "cd_p2s": 9.0, "metrics_version": "0" * 16}
+        old.pop("oriented_fraction_any_side")
+        store.set_metrics(rows[0]["key"], old)
+    work = str(tmp_path / "work")
+    assert main(["-q", "rescore", "--work", work, "--plan"]) == 0
+    assert "1 runs to score, 1 already scored by it" in capsys.readouterr().out
+    assert main(["-q", "rescore", "--work", work]) == 0
+    with Store(runner.db_path) as store:
+        again = store.get(rows[0]["key"])["metrics_json"]
+    mesh = trimesh.load(runner.db_path.parent / rows[0]["mesh_path"], process=False, force="mesh")
+    gt = load_gt(next((tmp_path / "work" / "inputs").glob("sphere-*")) / "gt.ply")
+    assert again["metrics_version"] == metrics_version() and "oriented_fraction_any_side" in again
+    assert again["cd_p2s"] == pytest.approx(compute_metrics(mesh, gt, n=1500, seed=0)["cd_p2s"], rel=1e-12)
+    assert main(["-q", "rescore", "--work", work]) == 0
+    assert "0 runs to score, 2 already scored by it" in capsys.readouterr().out
 
 
 # --------------------------------------------------------------------------------------------------- bad input

@@ -37,9 +37,12 @@ QUALITY_NOTE = ("Mesh quality (`eval.metrics.compute_metrics`): *oriented NC* is
                 "ignores orientation); *oriented* is the area-weighted share of faces whose normal points the "
                 "GT's way at the GT point closest to the face centre; both are blank for a GT that cannot be "
                 "oriented (a Moebius strip). Inside-out closed GTs are flipped outward before use. "
-                "*consistent winding*: share of runs in which every edge with two faces is wound oppositely by "
-                "them, whichever side they face (an open sheet seen in two-sided shaded images has no side "
-                "to pick, so there *oriented* says which side was chosen and this says whether it was kept). "
+                "*sheets either side*: the same share once each open piece of the mesh takes whichever side "
+                "agrees more (closed pieces must still face outward): an open sheet seen in two-sided shaded "
+                "images, depth and masks has no side to pick, so for multi-view rows *oriented* says which "
+                "side was chosen and this says whether each sheet is wound consistently and the closed parts "
+                "face out. *consistent winding*: share of runs in which every edge with two faces is wound "
+                "oppositely by them. "
                 "*watertight*: every edge has exactly two faces; *NM*: non-manifold edges (more than two "
                 "faces) and vertices (more than one fan of faces); *topology = GT*: same number of connected "
                 "components and same genus as the GT; *self-int.*: faces crossing another face.")
@@ -145,6 +148,8 @@ def quality_summary(done) -> dict:
 
     Returns:
         {"oriented_fraction": mean, "oriented_fraction_min": min (the issue's target is on every run),
+        "oriented_fraction_any_side", "oriented_fraction_any_side_min": the same with open pieces free to take
+        either side (`eval.metrics`; what multi-view input can decide),
         "watertight_share": fraction of runs that are watertight, "winding_share": fraction whose winding is
         consistent (`topology`'s `winding_consistent`), "no_nm_edges_share": fraction with no
         non-manifold edge, "non_manifold_edges", "non_manifold_vertices", "boundary_edges": means,
@@ -158,16 +163,19 @@ def quality_summary(done) -> dict:
         s = col(name)
         return _mean_series(keep(s.dropna().astype(float))) if s is not None else None
 
-    orient = col("oriented_fraction")
-    orient = orient.dropna().astype(float) if orient is not None else None
-    out = {"oriented_fraction": _mean_series(orient) if orient is not None else None,
-           "oriented_fraction_min": float(orient.min()) if orient is not None and len(orient) else None,
+    out = {}
+    for name in ("oriented_fraction", "oriented_fraction_any_side"):
+        s = col(name)
+        s = s.dropna().astype(float) if s is not None else None
+        out[name] = _mean_series(s) if s is not None else None
+        out[f"{name}_min"] = float(s.min()) if s is not None and len(s) else None
+    out.update({
            "watertight_share": _share(col("watertight")) if col("watertight") is not None else None,
            "winding_share": _share(col("winding_consistent")) if col("winding_consistent") is not None else None,
            "no_nm_edges_share": None, "non_manifold_edges": mean("non_manifold_edges"),
            "non_manifold_vertices": mean("non_manifold_vertices"), "boundary_edges": mean("boundary_edges"),
            "topology_match_share": None,
-           "self_intersecting_faces": mean("self_intersecting_faces", lambda s: s[s >= 0])}
+           "self_intersecting_faces": mean("self_intersecting_faces", lambda s: s[s >= 0])})
     nm = col("non_manifold_edges")
     if nm is not None:
         out["no_nm_edges_share"] = _share([None if v != v else v == 0 for v in nm.astype(float)])
@@ -198,7 +206,8 @@ def quality_row(r) -> dict:
     w = None if w is None or (isinstance(w, float) and math.isnan(w)) else bool(w)
     si = num(r.get("self_intersecting_faces"))
     out = {"nc_oriented": num(r.get("normal_consistency_oriented")),
-           "oriented_fraction": num(r.get("oriented_fraction")), "watertight": w, "watertight_text": "" if w is None else ("yes" if w else "no"),
+           "oriented_fraction": num(r.get("oriented_fraction")),
+           "oriented_fraction_any_side": num(r.get("oriented_fraction_any_side")), "watertight": w, "watertight_text": "" if w is None else ("yes" if w else "no"),
            "boundary_edges": num(r.get("boundary_edges")), "non_manifold_edges": num(r.get("non_manifold_edges")),
            "non_manifold_vertices": num(r.get("non_manifold_vertices")),
            "self_intersecting_faces": si if si is not None and si >= 0 else None}
@@ -214,6 +223,7 @@ def quality_row(r) -> dict:
 
 #: Columns of a per-run mesh-quality table (`quality_row` keys), for `markdown`.
 QUALITY_RUN_COLUMNS = [("nc_oriented", "oriented NC", 1), ("oriented_fraction", "oriented (%)", 100, ".1f"),
+                       ("oriented_fraction_any_side", "oriented, sheets either side (%)", 100, ".1f"),
                        ("watertight_text", "watertight", None), ("boundary_edges", "boundary edges", 1),
                        ("non_manifold_edges", "NM edges", 1), ("non_manifold_vertices", "NM vertices", 1),
                        ("components_vs_gt", "components", None), ("genus_vs_gt", "genus", None),
@@ -222,6 +232,8 @@ QUALITY_RUN_COLUMNS = [("nc_oriented", "oriented NC", 1), ("oriented_fraction", 
 QUALITY_SUMMARY_COLUMNS = [("normal_consistency_oriented", "oriented NC", 1),
                            ("oriented_fraction", "oriented (%)", 100, ".1f"),
                            ("oriented_fraction_min", "oriented min (%)", 100, ".1f"),
+                           ("oriented_fraction_any_side", "sheets either side (%)", 100, ".1f"),
+                           ("oriented_fraction_any_side_min", "sheets either side, min (%)", 100, ".1f"),
                            ("winding_share", "consistent winding (%)", 100, ".0f"),
                            ("watertight_share", "watertight (%)", 100, ".0f"),
                            ("no_nm_edges_share", "no NM edges (%)", 100, ".0f"),
@@ -294,7 +306,8 @@ def markdown(rows: list[dict], columns: list[tuple]) -> str:
 
 TABLE2_CSV_COLUMNS = ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "time_s", "fscore",
                       "normal_consistency", "paper_cd_l1", "paper_time_s", "normal_consistency_oriented",
-                      "oriented_fraction", "oriented_fraction_min", "watertight_share", "no_nm_edges_share",
+                      "oriented_fraction", "oriented_fraction_min", "oriented_fraction_any_side",
+                      "oriented_fraction_any_side_min", "watertight_share", "no_nm_edges_share",
                       "non_manifold_edges", "non_manifold_vertices", "boundary_edges", "topology_match_share",
                       "self_intersecting_faces"]
 
