@@ -484,15 +484,34 @@ def _orientation_metrics(pv, pf, gv, gf, samples_g, samples_p, face_g, face_p, g
     npf, ngf = _face_normals(pv, pf), _face_normals(gv, gf)
     nc = 0.5 * float(np.einsum("nc,nc->n", samples_g, npf[face_g]).mean()
                      + np.einsum("nc,nc->n", samples_p, ngf[face_p]).mean())
+    return {"normal_consistency_oriented": nc, **_oriented_fractions(pv, pf, ngf, gt_index)}
+
+
+def _oriented_fractions(pv, pf, ngf, gt_index) -> dict:
+    """`oriented_fraction` and `oriented_fraction_any_side` of the prediction (pv, pf) against GT face normals
+    `ngf` and the GT's closest-point index (module docstring)."""
     _, face_c, _ = gt_index.query(pv[pf].mean(axis=1))           # GT face nearest each prediction centroid
     area = _area(pv, pf)
-    agree = np.einsum("fc,fc->f", npf, ngf[face_c]) > 0
+    agree = np.einsum("fc,fc->f", _face_normals(pv, pf), ngf[face_c]) > 0
     comp, is_open = _sheets(pf)
     n = len(is_open)
     right, total = np.bincount(comp, area * agree, n), np.bincount(comp, area, n)
     any_side = np.where(is_open, np.maximum(right, total - right), right)
-    return {"normal_consistency_oriented": nc, "oriented_fraction": float(area[agree].sum() / area.sum()),
+    return {"oriented_fraction": float(area[agree].sum() / area.sum()),
             "oriented_fraction_any_side": float(any_side.sum() / total.sum())}
+
+
+def oriented_fractions(pred, gt, p2s_backend: str = "auto") -> dict:
+    """{"oriented_fraction", "oriented_fraction_any_side"} of `pred` against `gt` (trimesh meshes in one frame;
+    the GT taken as it is wound, so turn an inside-out GT outward first), without the rest of
+    `compute_metrics`. NaN for an empty prediction."""
+    from eval.closest_point import make_index
+
+    pv, pf = _check_mesh(pred, "prediction")
+    gv, gf = _check_mesh(gt, "GT")
+    if not len(pf) or not _area(pv, pf).sum() > 0:
+        return {"oriented_fraction": math.nan, "oriented_fraction_any_side": math.nan}
+    return _oriented_fractions(pv, pf, _face_normals(gv, gf), make_index(gv, gf, p2s_backend))
 
 
 def _sheets(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,7 @@
 """Output quality of DMesh meshes before and after the tet-based surface (`dmesh.extract.surface`).
 
-Cases (issue [quality]), one DMesh run each, whose final state is extracted twice:
+Cases (issue [quality]), one DMesh run each, whose final state is extracted twice (multi-view: two runs of
+the same seed, one without the orientation step):
 - "before": the extracted faces as they were output until now, wound per connected component
   (`dmesh.extract.orient_faces`; mesh to DMesh: the WDT's sorted triples, not wound at all);
 - "after": the library's output now (`extract(..., orient=True)`, `surface_of_mesh`, mesh_to_dmesh's
@@ -8,10 +9,12 @@ Cases (issue [quality]), one DMesh run each, whose final state is extracted twic
 
 Inputs: point cloud, `fast` preset, 100K samples with their normals, on torus, genus2, spot, bowl, plant,
 flag_box and suzanne (seed 0), and spot with seeds 1-4; multi-view, `depth` preset on the harness capture
-(64 views, 256 pixels) of torus and bowl; mesh to DMesh, the 60-vertex torus of tests/test_mesh_to_dmesh.py.
+(64 views, 256 pixels) of torus, bowl and plant; mesh to DMesh, the 60-vertex torus of tests/test_mesh_to_dmesh.py.
 
 Figures: `oriented`, the area fraction of faces whose normal agrees with the GT normal at the GT point
-closest to the face centroid (closed GTs turned outward first, `datasets.meshes.orient_outward`); watertight
+closest to the face centroid (closed GTs turned outward first, `datasets.meshes.orient_outward`); `any_side`,
+the same with each open piece on whichever side agrees more (`eval.metrics.oriented_fractions`: the side of a
+sheet seen in two-sided images is a convention, its consistency is not); watertight
 (every edge has two faces); boundary edges; non-manifold edges (more than two faces) and vertices (more than
 one fan of faces); CD p2s (`eval.metrics.chamfer_l1_p2s`, x1e-3, GT frame: vertex mean 0, max vertex norm
 1); `surface_s`, the seconds of the surface step.
@@ -26,7 +29,7 @@ from eval.bench.common import markdown_table, write_report
 
 POINTCLOUD = ("torus", "genus2", "spot", "bowl", "plant", "flag_box", "suzanne")
 REPEATS = ("spot", (1, 2, 3, 4))
-MULTIVIEW = ("torus", "bowl")
+MULTIVIEW = ("torus", "bowl", "plant")
 FILES = {"spot": "closed/spot.obj", "suzanne": "mixed/suzanne.obj"}
 SAMPLES = 100_000
 
@@ -41,32 +44,15 @@ def _gt(name: str):
     return orient_outward(normalize(mesh)[0], name, quiet=True)[0]
 
 
-def oriented_fraction(mesh, gt) -> float:
-    """Area fraction of `mesh` facing like the GT face closest to each face centroid (open3d)."""
-    import open3d as o3d
-
-    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
-    if len(f) == 0:
-        return float("nan")
-    t = v[f]
-    normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(gt.vertices, np.float32)),
-                        o3d.core.Tensor(np.asarray(gt.faces, np.uint32)))
-    hit = scene.compute_closest_points(o3d.core.Tensor(t.mean(1).astype(np.float32)))
-    ids = hit["primitive_ids"].numpy().astype(np.int64)
-    agree = np.einsum("ij,ij->i", normal, np.asarray(gt.face_normals)[ids]) > 0
-    area = np.linalg.norm(normal, axis=1)
-    return float((area * agree).sum() / area.sum())
-
-
 def figures(mesh, gt) -> dict:
     from dmesh import repair
-    from eval.metrics import chamfer_l1_p2s
+    from eval.metrics import chamfer_l1_p2s, oriented_fractions
 
     f = np.asarray(mesh.faces, np.int64)
     counts = repair.edge_table(f)[2]
-    return {"faces": int(len(f)), "oriented": oriented_fraction(mesh, gt),
+    orient = oriented_fractions(mesh, gt)
+    return {"faces": int(len(f)), "oriented": orient["oriented_fraction"],
+            "any_side": orient["oriented_fraction_any_side"],
             "watertight": bool(len(f) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "nonmanifold_edges": int((counts > 2).sum()),
             "nonmanifold_vertices": int(len(repair.nonmanifold_vertices(f))),
@@ -97,31 +83,17 @@ def _pointcloud(name: str, seed: int) -> list[dict]:
 
 def _multiview(name: str) -> list[dict]:
     from datasets import capture
-    from dmesh.extract import SurfaceConfig, orient_faces, surface_of_mesh, towards_cameras
+    from dmesh.extract import orient_faces
     from dmesh.recon import multiview as mv
-    from dmesh.recon.views import check_views, lifted_points, normalisation
 
     gt = _gt(name)
     views = capture.capture(gt, views=64, resolution=256)
-    cfg = mv.MultiViewConfig.depth(orient=False)
-    res = mv.reconstruct(views, cfg)
-    before = res.mesh.copy()
+    before = mv.reconstruct(views, mv.MultiViewConfig.depth(orient=False)).mesh.copy()
     orient_faces(before)
-    # The call site of `reconstruct` (orient=True), on this run's state.
-    t0 = time.perf_counter()
-    vw = check_views(views)
-    _, _, _, eyes = normalisation(vw)
-    seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
-    mesh = res.mesh.copy()
-    mesh.vertices = (np.asarray(mesh.vertices) - res.center) * res.scale
-    after = surface_of_mesh(mesh, res.dmesh.power_diagram(),
-                            towards_cameras((lifted_points(vw) - res.center) * res.scale, eyes[seen]),
-                            SurfaceConfig(seed=cfg.seed))
-    seconds = time.perf_counter() - t0
-    after.vertices = np.asarray(after.vertices) / res.scale + res.center
+    after = mv.reconstruct(views, mv.MultiViewConfig.depth())  # the same run, as the library outputs it
     case = {"input": "multiview", "shape": name, "seed": 0}
     return [case | {"variant": "before"} | figures(before, gt),
-            case | {"variant": "after"} | figures(after, gt) | {"surface_s": seconds}]
+            case | {"variant": "after"} | figures(after.mesh, gt) | {"surface_s": after.timings.get("orient")}]
 
 
 def _mesh_to_dmesh() -> list[dict]:
@@ -151,10 +123,10 @@ def main(out: str = "reports", quick: bool = False) -> None:
     for name in MULTIVIEW[:1] if quick else MULTIVIEW:
         rows += _multiview(name)
     rows += _mesh_to_dmesh()
-    columns = ["input", "shape", "seed", "variant", "faces", "oriented", "watertight", "boundary_edges",
+    columns = ["input", "shape", "seed", "variant", "faces", "oriented", "any_side", "watertight", "boundary_edges",
                "nonmanifold_edges", "nonmanifold_vertices", "cd_p2s_1e3", "surface_s"]
     rows = [{c: r.get(c, "") for c in columns} for r in rows]
-    table = markdown_table(rows, columns, {"oriented": ".4f", "cd_p2s_1e3": ".4g", "surface_s": ".1f"})
+    table = markdown_table(rows, columns, {"oriented": ".4f", "any_side": ".4f", "cd_p2s_1e3": ".4g", "surface_s": ".1f"})
     write_report(out, "bench_quality", "Output quality: orientation, watertightness, manifoldness", __doc__, table,
                  rows)
 
