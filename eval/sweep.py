@@ -447,8 +447,32 @@ _SOURCE_SUFFIXES = (".py", ".cpp", ".cc", ".h", ".hpp", ".cu", ".cuh", ".txt", "
 
 
 def source_hash(trees: tuple[str, ...], root: str | Path = REPO) -> str:
-    """SHA-256 (hex) over the relative paths and bytes of the source files under `trees` of `root`."""
+    """SHA-256 (hex) over the relative paths and code of the source files under `trees` of `root`: a Python
+    file's syntax tree without its docstrings (`code_text`: comments, docstrings and layout change no key), the
+    bytes of any other source."""
     return _source_hash(tuple(sorted(set(trees))), str(root))
+
+
+def code_text(path: Path) -> bytes:
+    """What of a source file a run's key depends on: for Python, the dump of its syntax tree with the
+    docstrings of the module, classes and functions removed (so editing a comment, a docstring or the layout
+    reruns nothing); the raw bytes of other files and of Python that does not parse."""
+    import ast
+
+    data = path.read_bytes()
+    if path.suffix != ".py":
+        return data
+    try:
+        tree = ast.parse(data, str(path))
+    except (SyntaxError, ValueError):
+        return data
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+                    and isinstance(first.value.value, str):
+                node.body = node.body[1:] or [ast.Pass()]
+    return ast.dump(tree, include_attributes=False).encode()
 
 
 @functools.lru_cache(maxsize=None)
@@ -461,7 +485,7 @@ def _source_hash(trees: tuple[str, ...], root: str) -> str:
         for f in files:
             if f.suffix not in _SOURCE_SUFFIXES or "__pycache__" in f.parts:
                 continue
-            h.update(str(f.relative_to(base)).encode() + b"\0" + f.read_bytes() + b"\0")
+            h.update(str(f.relative_to(base)).encode() + b"\0" + code_text(f) + b"\0")
     return h.hexdigest()
 
 

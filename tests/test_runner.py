@@ -114,11 +114,21 @@ def test_source_hash_changes_with_the_code(tmp_path):
     (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
     h1 = source_hash(("pkg",), tmp_path)
     assert h1 == source_hash(("pkg",), tmp_path)
-    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
     from eval import sweep as sweep_mod
 
+    # Comments, docstrings and layout are not code: they leave the hash (and every run's key) as it was.
+    (tmp_path / "pkg" / "a.py").write_text('"""A module."""\n# a comment\nx  =  1  # set x\n')
+    sweep_mod._source_hash.cache_clear()
+    assert source_hash(("pkg",), tmp_path) == h1
+    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
     sweep_mod._source_hash.cache_clear()
     assert source_hash(("pkg",), tmp_path) != h1
+    (tmp_path / "pkg" / "b.cpp").write_text("int f() { return 1; }\n")  # other sources: their bytes
+    sweep_mod._source_hash.cache_clear()
+    h2 = source_hash(("pkg",), tmp_path)
+    (tmp_path / "pkg" / "b.cpp").write_text("int f() { return 1; }  // a comment\n")
+    sweep_mod._source_hash.cache_clear()
+    assert source_hash(("pkg",), tmp_path) != h2
 
 
 def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
@@ -141,21 +151,21 @@ def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
         shutil.copytree(Path(REPO) / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
     before = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
     with open(tmp_path / "baselines" / "bpa.py", "a") as f:
-        f.write("\n# an edit\n")
+        f.write("\nEDITED = 1\n")
     _source_hash.cache_clear()
     module_closure.cache_clear()
     after = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
     assert after["bpa"] != before["bpa"]
     assert after["psr"] == before["psr"] and after["dmesh"] == before["dmesh"]
     with open(tmp_path / "datasets" / "sampling.py", "a") as f:
-        f.write("\n# an edit\n")
+        f.write("\nEDITED = 1\n")
     _source_hash.cache_clear()
     assert all(code_version(m, tmp_path) != after[m.name] for m in (psr, bpa, dm))
     # An edit of the metrics reruns no method: it changes the metrics version only (`dmesh rescore`).
     versions = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
     scored = metrics_version(tmp_path)
     with open(tmp_path / "eval" / "metrics.py", "a") as f:
-        f.write("\n# an edit\n")
+        f.write("\nEDITED = 1\n")
     _source_hash.cache_clear()
     assert {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)} == versions
     assert metrics_version(tmp_path) != scored
