@@ -119,6 +119,10 @@ def test_depth_start_reconstruction(sphere, sphere_views, one_thread):
     seen = []
     res = reconstruct(sphere_views, cfg, callback=seen.append)
     assert _p2s(res.mesh, sphere) < DEPTH_LIMIT
+    # A closed input gives a closed, outward surface.
+    from eval.metrics import oriented_fractions
+
+    assert res.mesh.is_watertight and oriented_fractions(res.mesh, sphere)["oriented_fraction"] >= 0.99
     assert [r["stage"] for r in seen if "stage" in r][:2] == ["init", "init_depth"]
     assert res.info["init_depth"]["lifted_points"] == 20_000 and res.history == []
     again = reconstruct(sphere_views, cfg)
@@ -146,6 +150,10 @@ def test_depth_preset_leaves_an_open_shape_one_clean_sheet(one_thread):
     assert stats["self_intersecting_faces"] <= 0.001 * stats["faces"]
     assert stats["boundary_edges"] < 0.05 * stats["faces"]
     assert _p2s(res.mesh, gt) < DEPTH_LIMIT
+    # Wound consistently; which side it faces is a convention two-sided images do not decide.
+    from eval.metrics import oriented_fractions
+
+    assert oriented_fractions(res.mesh, gt)["oriented_fraction_any_side"] >= 0.99
 
 
 @needs_gl
