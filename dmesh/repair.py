@@ -400,6 +400,43 @@ def drop_crowding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return keep
 
 
+def keep_flattest(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) bool faces to keep: on each edge with more than two faces, the two that continue each other best.
+
+    Each face at the edge is represented by the direction from the edge to its third vertex, perpendicular to
+    the edge; the pair whose directions are most opposite (a dihedral angle nearest 180 degrees: the two
+    sides of one smooth surface) stays, the other faces there go. A false face spanning across a surface makes
+    a sharp fold with every true one, so it is the one dropped. One pass over the edges.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    keep = np.ones(F, bool)
+    if F == 0:
+        return keep
+    _, inverse, counts = edge_table(f)
+    he = np.flatnonzero(counts[inverse] > 2)
+    if len(he) == 0:
+        return keep
+    v = np.asarray(vertices, dtype=np.float64)
+    edge, face, corner = inverse[he], he % F, he // F  # half-edge k of a face runs corner k -> k + 1
+    a, b, c = f[face, corner], f[face, (corner + 1) % 3], f[face, (corner + 2) % 3]
+    e = v[b] - v[a]
+    e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), FLOAT64_FLOOR)
+    u = v[c] - v[a]
+    u -= np.einsum("ij,ij->i", u, e)[:, None] * e
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), FLOAT64_FLOOR)
+    order = np.argsort(edge, kind="stable")
+    edge, face, u = edge[order], face[order], u[order]
+    starts = np.flatnonzero(np.r_[True, edge[1:] != edge[:-1]])
+    for s0, s1 in zip(starts, np.r_[starts[1:], len(edge)]):
+        cos = u[s0:s1] @ u[s0:s1].T
+        np.fill_diagonal(cos, np.inf)
+        i, j = np.unravel_index(np.argmin(cos), cos.shape)
+        drop = np.setdiff1d(np.arange(s1 - s0), [i, j])
+        keep[face[s0 + drop]] = False
+    return keep
+
+
 __all__ = ["edge_table", "nonmanifold_edges", "corner_fans", "nonmanifold_vertices", "split_fans", "boundary_edge_count",
-           "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop", "fill_holes",
+           "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop", "fill_holes", "keep_flattest",
            "faces_on_edges", "drop_crowding"]

@@ -139,3 +139,24 @@ def test_mesh_to_dmesh_output_is_wound_outward_even_for_an_inside_out_input():
     for given in (cap, cap[:, ::-1]):
         out = _orient(v, np.ones(len(v)), np.sort(given, axis=1), v, given)
         assert {cycle(f) for f in out.tolist()} == {cycle(f) for f in given.tolist()}
+
+
+def test_false_faces_go_when_the_input_is_manifold_and_stay_when_it_is_not():
+    from dmesh.wdt import PowerDiagram
+
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    v = sphere.vertices * 0.8
+    true = {tuple(x) for x in np.sort(sphere.faces, axis=1).tolist()}
+    pd = PowerDiagram.from_points(v, np.ones(len(v)))
+    wdt = np.sort(pd.faces.astype(np.int64), axis=1)
+    edges = {tuple(sorted(e)) for e in sphere.edges.tolist()}
+    # WDT faces through the inside that share an edge with the sphere: each makes that edge non-manifold
+    false = [x for x in wdt.tolist() if tuple(x) not in true
+             and {(x[0], x[1]), (x[0], x[2]), (x[1], x[2])} & edges]
+    faces = np.concatenate([np.sort(sphere.faces, axis=1), np.array(false[:1])])
+    out = _orient(v, np.ones(len(v)), faces, v, sphere.faces)      # manifold input: a closed, outward sphere
+    assert {tuple(x) for x in np.sort(out, axis=1).tolist()} == true
+    assert check_closed(out, v).volume > 0
+    nonmanifold_input = np.concatenate([sphere.faces, np.array(false[:1])])
+    out = _orient(v, np.ones(len(v)), faces, v, nonmanifold_input)
+    assert len(out) == len(faces)                                   # such an input's extra faces stay

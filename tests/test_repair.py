@@ -128,3 +128,13 @@ def test_surface_drops_stray_sheet_triangles_so_a_closed_part_stays_watertight()
         mesh = trimesh.Trimesh(pd.points[out.vertices], out.faces, process=False)
         assert (len(out.faces) == int(hull.sum()) + 1) == expect_stray and out.info["crumbs_dropped"] == (not expect_stray)
         assert mesh.split(only_watertight=False)[0].is_watertight
+
+
+def test_keep_flattest_drops_the_fin_across_a_flat_pair():
+    from dmesh.repair import keep_flattest
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 1.0], [0.2, 0.8, -0.3]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 2, 4], [2, 0, 5]])    # a flat square split on edge 0-2, two fins
+    keep = keep_flattest(v, f)
+    assert keep.tolist() == [True, True, False, False]
+    assert keep_flattest(v, f[:2]).all()                           # a manifold mesh keeps every face
