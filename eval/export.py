@@ -109,15 +109,16 @@ def read_export(path: str | Path) -> list[dict]:
 
 
 def load_export(path: str | Path, db: str | Path, mesh_root: str | Path | None = None,
-                keep_existing: bool = False) -> int:
+                keep_existing: bool = False, runs: list[dict] | None = None) -> int:
     """Loads the export `path` into the store `db` (created); returns the number of runs loaded.
 
     Mesh paths stored relative to their store's folder are made absolute against `mesh_root` (the work folder
     whose `meshes/` they name), so renders find the meshes when they exist there. With `keep_existing`, runs
-    whose key the store already holds are left as the store has them (`dmesh import-store`)."""
+    whose key the store already holds are left as the store has them (`dmesh import-store`). `runs`: the
+    export's runs when the caller has read them already (`read_export`)."""
     from eval.store import Store
 
-    runs = read_export(path)
+    runs = read_export(path) if runs is None else runs
     loaded = 0
     with Store(db) as store:
         for r in runs:

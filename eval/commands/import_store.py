@@ -24,9 +24,10 @@ def run(args) -> int:
     src = Path(args.input)
     if not src.is_file():
         raise FileNotFoundError(f"no store export at {src}: give -i")
-    total = len(read_export(src))
+    runs = read_export(src)
+    total = len(runs)
     db = Path(args.db) if args.db else Path(args.work) / "results.sqlite"
     db.parent.mkdir(parents=True, exist_ok=True)
-    n = load_export(src, db, mesh_root=args.work, keep_existing=True)
+    n = load_export(src, db, mesh_root=args.work, keep_existing=True, runs=runs)
     print(f"loaded {n} runs of {src} into {db} ({total - n} the store already had were kept)")
     return 0
