@@ -437,6 +437,6 @@ def keep_flattest(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return keep
 
 
-__all__ = ["edge_table", "nonmanifold_edges", "corner_fans", "nonmanifold_vertices", "split_fans", "boundary_edge_count",
-           "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop", "fill_holes", "keep_flattest",
-           "faces_on_edges", "drop_crowding"]
+__all__ = ["edge_table", "nonmanifold_edges", "corner_fans", "nonmanifold_vertices", "split_fans",
+           "boundary_edge_count", "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop",
+           "fill_holes", "keep_flattest", "faces_on_edges", "drop_crowding"]

@@ -167,7 +167,8 @@ def drop_open_regions(pd, walls: np.ndarray, inside: np.ndarray, max_open: float
     drop = open_area > max_open * (wall_area + open_area)
     if min_thickness > 0:
         p = pd.points
-        edge = (np.linalg.norm(p[faces[:, 1]] - p[faces[:, 0]], axis=1) + np.linalg.norm(p[faces[:, 2]] - p[faces[:, 1]], axis=1)
+        edge = (np.linalg.norm(p[faces[:, 1]] - p[faces[:, 0]], axis=1)
+                + np.linalg.norm(p[faces[:, 2]] - p[faces[:, 1]], axis=1)
                 + np.linalg.norm(p[faces[:, 0]] - p[faces[:, 2]], axis=1)) / 3.0
         mean_edge = np.bincount(r, edge, n) / np.maximum(np.bincount(r, minlength=n), 1)
         volume = np.bincount(region[inside], tet_volumes(p, pd.tets[inside]), n)

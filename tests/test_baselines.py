@@ -2,8 +2,9 @@
 
 Thresholds are point-to-surface Chamfer L1 (GT-radius units) measured on this machine with these settings,
 with about 2x margin: psr 1.4e-3, sdf_mc 1.7e-3, bpa 1.2e-3, alpha_wrap 4.5e-3 (alpha = 5 mean spacings
-rounds off detail, and the wrap sits `offset` outside the points), udf_mc 2.1e-3 single-sheet / ~8e-2 double shell; tsdf 1.2e-2 on the analytic sphere and 5e-3 on the
-captured torus (coarse 64-96 px images and 96-128 voxel grids).
+rounds off detail, and the wrap sits `offset` outside the points), udf_mc 2.1e-3 single-sheet / ~8e-2 double
+shell; tsdf 1.2e-2 on the analytic sphere and 5e-3 on the captured torus (coarse 64-96 px images and 96-128
+voxel grids).
 """
 from __future__ import annotations
 

@@ -126,7 +126,8 @@ def test_surface_drops_stray_sheet_triangles_so_a_closed_part_stays_watertight()
     for max_crumb, expect_stray in ((4, False), (0, True)):
         out = surface(pd, walls, config=SurfaceConfig(max_crumb=max_crumb))
         mesh = trimesh.Trimesh(pd.points[out.vertices], out.faces, process=False)
-        assert (len(out.faces) == int(hull.sum()) + 1) == expect_stray and out.info["crumbs_dropped"] == (not expect_stray)
+        assert ((len(out.faces) == int(hull.sum()) + 1) == expect_stray
+                and out.info["crumbs_dropped"] == (not expect_stray))
         assert mesh.split(only_watertight=False)[0].is_watertight
 
 

@@ -176,8 +176,10 @@ def test_ablation_tables_average_per_value_and_stay_out_of_table2(tmp_path):
     path = tmp_path / "s.sqlite"
     with Store(path) as s:
         s.upsert(_row("p", "psr", "torus", "closed", "done", 1e-3, 7e-3, 2.0))
-        for i, (lw, lq, shape, cd, faces) in enumerate([(1e-6, 0.0, "torus", 2e-3, 100), (1e-6, 0.0, "bowl", 4e-3, 300),
-                                                        (1e-4, 0.0, "torus", 9e-3, 50), (0.0, 1e-2, "torus", 1e-3, 400)]):
+        for i, (lw, lq, shape, cd, faces) in enumerate([(1e-6, 0.0, "torus", 2e-3, 100),
+                                                        (1e-6, 0.0, "bowl", 4e-3, 300),
+                                                        (1e-4, 0.0, "torus", 9e-3, 50),
+                                                        (0.0, 1e-2, "torus", 1e-3, 400)]):
             r = _row(f"a{i}", "dmesh", shape, "closed", "done", cd, cd, 10.0,
                      metrics={"cd_p2s": cd, "cd_l1": cd, "faces": faces, "aspect_ratio_mean": 1.5})
             r.update(config_label=f"lambda_quality={lq},lambda_weight={lw},steps_phase1=40",
@@ -231,7 +233,8 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
     table2 = list(csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv")))
     assert sorted(r["method"] for r in table2) == ["dmesh", "dmesh [preset=paper]", "dmesh [preset=paper]"]
     text = (tmp_path / "rep" / "recipes_size.md").read_text()
-    assert "| paper preset | closed | 1 | 5.66 |" in text and (tmp_path / "rep" / "figures" / "recipes_size.png").is_file()
+    assert ("| paper preset | closed | 1 | 5.66 |" in text
+            and (tmp_path / "rep" / "figures" / "recipes_size.png").is_file())
 
 
 def test_reports_take_the_latest_finished_run_over_a_rerun_left_running(tmp_path):

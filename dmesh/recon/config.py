@@ -204,8 +204,8 @@ class PointCloudConfig(Presets):
         """Seconds, for tests and the CLI smoke run: 1000 seeds and their poles (~2.5K points), 2 + 15 steps
         at a tenth of the paper's lr, 4K target points and samples."""
         base = dict(num_init=1000, voronoi="poles", carve=5.0, max_voronoi=None, num_target=4000,
-                    num_samples=4000, steps_phase1=2, steps_phase2=15, lr=3e-5, update_bound=3e-5, k_max=12, lambda_weight=0.0,
-                    real_ramp_steps=2, freeze_phase2=(0, 8), knn_interval=5, save_every=10)
+                    num_samples=4000, steps_phase1=2, steps_phase2=15, lr=3e-5, update_bound=3e-5, k_max=12,
+                    lambda_weight=0.0, real_ramp_steps=2, freeze_phase2=(0, 8), knn_interval=5, save_every=10)
         return cls(**{**base, **overrides})
 
     def step_config(self):

@@ -13,12 +13,13 @@ The fit (a Gauss-Newton step of the squared depth residual on the mesh):
 2. Every sample projected into every view: where it lands on mask pixels (bilinear depth of the 4 pixels
    around it, all in the mask), the captured depth D differs from its own depth z by less than
    `tolerance`, and the view sees the face at least at `min_cos` (its normal n against the view ray d:
-   |n . d| > min_cos, either side, so the winding does not matter), the captured surface point along that ray is (D - z) / (d . a) further along d (a: the
-   camera's axis), which is delta = (D - z) (n . d) / (d . a) along n. Occluded samples fail the depth test.
+   |n . d| > min_cos, either side, so the winding does not matter), the captured surface point along that
+   ray is (D - z) / (d . a) further along d (a: the camera's axis), which is delta = (D - z) (n . d) / (d . a)
+   along n. Occluded samples fail the depth test.
 3. delta per sample: the mean over its views weighted by (n . d)^2 (grazing views say least).
-4. Vertex offsets x (N,) along the vertex normal axes m (`dmesh.sampling.vertex_axes`, sign-free) minimise sum_s (sum_i b_si (m_i . n_s) x_i - delta_s)^2 +
-   damp^2 |x|^2 (`scipy.sparse.linalg.lsqr`), each clipped to `max_offset`. The factor m_i . n_s carries the
-   sign, so the faces' winding does not matter.
+4. Vertex offsets x (N,) along the vertex normal axes m (`dmesh.sampling.vertex_axes`, sign-free) minimise
+   sum_s (sum_i b_si (m_i . n_s) x_i - delta_s)^2 + damp^2 |x|^2 (`scipy.sparse.linalg.lsqr`), each clipped to
+   `max_offset`. The factor m_i . n_s carries the sign, so the faces' winding does not matter.
 
 Topology and winding are unchanged. Vertices no sample constrains stay where they are (the damping holds
 them). Written here because no mesh library offers a least-squares fit of a mesh to depth maps.

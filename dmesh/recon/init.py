@@ -5,8 +5,8 @@ Letters: G input points, S seeds, V Voronoi vertices kept.
 
 Seeds are a random subset of the input points (real value 1); the Voronoi vertices of the seeds (the
 circumcentres of their Delaunay tets), which lie near the medial axis, are added inside the box
-[-domain, domain]^3 as imaginary points (real value 0), with optional box corners (see below). All weights start at 1 (equal weights: the first
-triangulation is the Delaunay triangulation).
+[-domain, domain]^3 as imaginary points (real value 0), with optional box corners (see below). All weights
+start at 1 (equal weights: the first triangulation is the Delaunay triangulation).
 
 `vertices="poles"` keeps only each seed's two poles (Amenta and Bern's crust: the farthest vertex of its
 Voronoi cell, and the farthest on the other side of the seed), instead of every Voronoi vertex. Poles lie

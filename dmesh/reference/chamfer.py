@@ -51,7 +51,8 @@ def plane_weighted_distance(offset: torch.Tensor, normal: torch.Tensor, tangent_
 
 
 def _distances(origin: torch.Tensor, others: torch.Tensor, rows: torch.Tensor, origin_normals, other_normals,
-               lambda_normal: float, with_normals: bool, plane_normals=None, tangent_weight: float = 1.0) -> torch.Tensor:
+               lambda_normal: float, with_normals: bool, plane_normals=None,
+               tangent_weight: float = 1.0) -> torch.Tensor:
     """(R, K) distance from origin[r] to others[rows[r, k]]; with normals, plus lambda_normal (1 - |n . n'|)
     of the two points' normals. With `plane_normals` ((R, K, 3) unit normals of the pairs) and a tangent weight
     below 1, the tangential part of each offset is scaled by it (`plane_weighted_distance`)."""

@@ -74,7 +74,8 @@ def write_report(out: str | Path, name: str, title: str, intro: str, table: str,
     out = Path(out)
     info = machine_info()
     machine = ", ".join(f"{k} {v}" for k, v in info.items())
-    md = f"# {title}\n\n{intro}\n\n{table}\nMachine: {machine}.\n\nRegenerate: `python -m eval.bench {name.removeprefix('bench_')}`.\n"
+    md = (f"# {title}\n\n{intro}\n\n{table}\nMachine: {machine}.\n\n"
+          f"Regenerate: `python -m eval.bench {name.removeprefix('bench_')}`.\n")
     write_text(out / f"{name}.md", md)
     buf = io.StringIO()
     if rows:

@@ -56,7 +56,8 @@ def _initial_dmesh(pts, cfg):
 
 class StepTerms:
     """The loss terms of a phase-1 step as a function of the DMesh parameters, with the triangulation's
-    candidate set, the Chamfer K and the drawn (face, barycentric) pairs fixed at their values for the initial parameters."""
+    candidate set, the Chamfer K and the drawn (face, barycentric) pairs fixed at their values for the initial
+    parameters."""
 
     def __init__(self, dm, target, cfg, seed: int = 0):
         from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
@@ -167,7 +168,8 @@ def main(out: str = "reports", quick: bool = False) -> None:
     for case, cfg in cases.items():
         print(f"{case} ...", flush=True)
         rows += check(case, cfg, pts)
-    cols = ["case", "points", "term", "group", "lost_faces", "share", "grad_norm", "autograd"] + [f"fd_h{h:g}" for h in STEPS] + ["rel_err"]
+    cols = (["case", "points", "term", "group", "lost_faces", "share", "grad_norm", "autograd"]
+            + [f"fd_h{h:g}" for h in STEPS] + ["rel_err"])
     fmt = {c: ".3g" for c in cols[5:]}
     intro = (__doc__.split("\n\n", 1)[1].rsplit("Regenerate", 1)[0].strip()
              + "\n\nCoefficients: each case's preset (fast: no weight regulariser, real 1e-3, quality 1e-3; paper: "

@@ -9,9 +9,9 @@ bench measures, with N surface samples of the GT itself and N target points on i
 - signal: the loss of the GT moved outward along its normals by delta (a surface whose CD p2s to the GT is
   about 2 delta) minus the floor: what a step could gain by fixing that error;
 - alignment: with the surface moved out by delta, the per-sample descent direction (minus the gradient of the
-  loss with respect to the sample position) against the direction that fixes the error (the inward normal): the mean cosine over samples and
-  the share of samples whose descent direction points inward at all. 1 and 100 %: every sample is pulled toward the
-  surface; 0 and 50 %: the gradient is noise.
+  loss with respect to the sample position) against the direction that fixes the error (the inward normal):
+  the mean cosine over samples and the share of samples whose descent direction points inward at all. 1 and
+  100 %: every sample is pulled toward the surface; 0 and 50 %: the gradient is noise.
 
 Two distances: `euclidean` (the loss the paper and this project use) and `plane` (point to the tangent plane
 of the matched point: |(s - t) . n_t| from samples to targets, |(t - s) . n_s| from targets to samples), which

@@ -126,7 +126,8 @@ def main(out: str = "reports", quick: bool = False) -> None:
     columns = ["input", "shape", "seed", "variant", "faces", "oriented", "any_side", "watertight", "boundary_edges",
                "nonmanifold_edges", "nonmanifold_vertices", "cd_p2s_1e3", "surface_s"]
     rows = [{c: r.get(c, "") for c in columns} for r in rows]
-    table = markdown_table(rows, columns, {"oriented": ".4f", "any_side": ".4f", "cd_p2s_1e3": ".4g", "surface_s": ".1f"})
+    table = markdown_table(rows, columns,
+                           {"oriented": ".4f", "any_side": ".4f", "cd_p2s_1e3": ".4g", "surface_s": ".1f"})
     write_report(out, "bench_quality", "Output quality: orientation, watertightness, manifoldness", __doc__, table,
                  rows)
 

@@ -66,7 +66,8 @@ def main(out: str = "reports", quick: bool = False) -> None:
     cols = ["shape", "noise", "case", "cd_p2s_e3", "faces", "time_s", "loss_first", "loss_last"]
     fmt = {"cd_p2s_e3": ".3f", "time_s": ".0f", "loss_first": ".5f", "loss_last": ".5f"}
     intro = (__doc__.split("\n\n", 1)[1].rsplit("Regenerate", 1)[0].strip()
-             + f"\n\nSeeds: {'10K (--quick)' if quick else 'the fast preset' + chr(39) + 's 40K'}. CD p2s in units of 1e-3.")
+             + f"\n\nSeeds: {'10K (--quick)' if quick else 'the fast preset' + chr(39) + 's 40K'}. "
+               "CD p2s in units of 1e-3.")
     write_report(out, "bench_recipes", "When point-cloud gradient steps pay", intro,
                  markdown_table(rows, cols, fmt), rows)
 

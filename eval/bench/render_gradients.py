@@ -5,12 +5,12 @@ edge's vertex moved in the image plane or in depth), 32 x 32 pixels. For each im
 diffuse) the sum over the pixels is differentiated along one direction u: autograd against central differences
 at h = 1e-2, 3e-3 and 1e-3. There the soft render is smooth and the differences converge to the gradient.
 
-Second table: the multi-view procedure moves points with the soft renderer's analytic gradients (`dmesh.render.soft_render`:
-triangles with a soft band of `edge_width` pixels outside them). The images it fits come from a hard
-rasteriser. This bench checks, for an opaque sphere (an icosphere of radius 0.5, seen from distance 2 at
-R x R pixels), the derivative of the procedure's image loss (L1 of the diffuse channel + L1 of the depth
-channel, `dmesh.recon.views.depth_channel`) against target images of the sphere scaled by 1.03, along random
-unit directions u that move only
+Second table: the multi-view procedure moves points with the soft renderer's analytic gradients
+(`dmesh.render.soft_render`: triangles with a soft band of `edge_width` pixels outside them). The images it
+fits come from a hard rasteriser. This bench checks, for an opaque sphere (an icosphere of radius 0.5, seen
+from distance 2 at R x R pixels), the derivative of the procedure's image loss (L1 of the diffuse channel + L1
+of the depth channel, `dmesh.recon.views.depth_channel`) against target images of the sphere scaled by 1.03,
+along random unit directions u that move only
 
 - the silhouette vertices (those with both front- and back-facing faces around them in some view), or
 - the interior vertices (on no view's silhouette),
@@ -151,7 +151,8 @@ def check(resolution: int, views: int, directions: int, h: float) -> list[dict]:
 
 
 SCENES = {
-    "triangle": ([[-.5, -.4, 0.], [.5, -.3, .1], [.1, .5, -.1]], [[0, 1, 2]], [1.0], [[.3, .2, .5], [0, 0, 0], [0, 0, 0]]),
+    "triangle": ([[-.5, -.4, 0.], [.5, -.3, .1], [.1, .5, -.1]], [[0, 1, 2]], [1.0],
+                 [[.3, .2, .5], [0, 0, 0], [0, 0, 0]]),
     "triangle, opacity 0.6": ([[-.5, -.4, 0.], [.5, -.3, .1], [.1, .5, -.1]], [[0, 1, 2]], [0.6],
                               [[.3, .2, .5], [0, 0, 0], [0, 0, 0]]),
     "two triangles, edge vertex in the image plane": (
@@ -201,7 +202,8 @@ def main(out: str = "reports", quick: bool = False) -> None:
     summary = []
     for key in sorted({(r["resolution"], r["targets"], r["channels"], r["group"]) for r in rows}, key=str):
         sel = [r for r in rows if (r["resolution"], r["targets"], r["channels"], r["group"]) == key]
-        same = {f: float(np.mean([np.sign(r["autograd"]) == np.sign(r[f]) for r in sel])) for f in ("fd_soft", "fd_hard")}
+        same = {f: float(np.mean([np.sign(r["autograd"]) == np.sign(r[f]) for r in sel]))
+                for f in ("fd_soft", "fd_hard")}
         summary.append({"resolution": key[0], "targets": key[1], "channels": key[2], "group": key[3],
                         "directions": len(sel),
                         "sign_as_fd_soft": same["fd_soft"], "sign_as_fd_hard": same["fd_hard"],

@@ -225,5 +225,6 @@ def _full_section(full: dict, out: str) -> str:
     return (f"\n## The full point-cloud paper preset on the torus\n\n"
             f"Native kernels, {p1_steps} + {p2_steps} steps{settled}: {full['wall']:.0f} s wall without the "
             f"probes (target <= 775 s, {verdict}); final "
-            f"CD p2s {full['cd_final'] * 1e3:.3f}e-3 (100K samples). CD p2s (x1e-3, 20K samples; the preset's extraction rule, not oriented) "
+            f"CD p2s {full['cd_final'] * 1e3:.3f}e-3 (100K samples). CD p2s (x1e-3, 20K samples; the preset's "
+            "extraction rule, not oriented) "
             f"at phase/step: {points}.\n\n![loss and CD against the step](figures/bench_step_paper_torus.png)\n")

@@ -91,8 +91,9 @@ def run(args) -> int:
             ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("faces", "faces", 1),
             ("time_s", "time (s)", 1), ("peak_memory_mb", "peak MiB", 1), ("error", "error", None)]
     quality_cols = [("method", "method", None), ("input", "input", None)] + tables.QUALITY_RUN_COLUMNS
-    csv_cols = [c for c, _, _ in cols] + ["nc_oriented", "oriented_fraction", "oriented_fraction_any_side", "watertight", "boundary_edges",
-                                          "non_manifold_edges", "non_manifold_vertices", "components",
+    csv_cols = [c for c, _, _ in cols] + ["nc_oriented", "oriented_fraction", "oriented_fraction_any_side",
+                                          "watertight", "boundary_edges", "non_manifold_edges",
+                                          "non_manifold_vertices", "components",
                                           "gt_components", "genus", "gt_genus", "self_intersecting_faces"]
     figs = render_figures(df, runner.db_path, work, out)
     category = df["category"].iloc[0] if len(df) else "unknown"

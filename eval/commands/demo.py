@@ -38,7 +38,8 @@ def add_arguments(p):
     p.add_argument("--metric-samples", type=int, default=100_000,
                    help="surface samples per mesh for the metrics (default: 100000)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--tiny", action="store_true", help="smoke run in seconds (tiny preset with 2 + 8 steps, 5000 points)")
+    p.add_argument("--tiny", action="store_true",
+                   help="smoke run in seconds (tiny preset with 2 + 8 steps, 5000 points)")
 
 
 def _table(rows: list[dict]) -> tuple[str, str]:

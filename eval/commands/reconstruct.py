@@ -1,12 +1,12 @@
 """`dmesh reconstruct pointcloud|multiview INPUT -o OUT.obj`: DMesh reconstruction of a point cloud or of
 multi-view images.
 
-For `pointcloud`, INPUT is a point cloud (`.npy` with 3 or 6 columns, `.xyz`/`.txt`/`.pts` text with 3 or 6 columns, or a
-`.ply` without faces, optionally with nx/ny/nz) or a mesh (OBJ, OFF, STL, GLB, or PLY with faces), which is
-sampled (`--samples` area-uniform points with face normals). For `multiview`, INPUT is a capture folder
-written by `dmesh capture` (its `views.npz`: diffuse, depth, mask, cameras). The output mesh is in INPUT's
-frame; `OUT.timings.json` beside it holds the seconds per stage, the config and the final figures. Every file is
-written under a temporary name and renamed.
+For `pointcloud`, INPUT is a point cloud (`.npy` with 3 or 6 columns, `.xyz`/`.txt`/`.pts` text with 3 or 6
+columns, or a `.ply` without faces, optionally with nx/ny/nz) or a mesh (OBJ, OFF, STL, GLB, or PLY with
+faces), which is sampled (`--samples` area-uniform points with face normals). For `multiview`, INPUT is a
+capture folder written by `dmesh capture` (its `views.npz`: diffuse, depth, mask, cameras). The output mesh is
+in INPUT's frame; `OUT.timings.json` beside it holds the seconds per stage, the config and the final figures.
+Every file is written under a temporary name and renamed.
 """
 from __future__ import annotations
 

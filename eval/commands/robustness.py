@@ -7,9 +7,9 @@ clouds: each corruption level by itself, and a realistic scan), `robustness_nois
 preset on the inputs with noise), `robustness_budget.yaml` (each method at
 several output sizes on the clean input), `robustness_multiview.yaml` (depth noise, fewer views, fewer
 pixels) and `robustness_multiview_noisy.yaml` (DMesh's `depth` preset on smoothed lifted pixels, on the inputs
-with depth noise). `--quick` runs `robustness_small.yaml` instead (the CI subset, a few minutes) into runs/robustness_quick
-and out/robustness_quick. Methods a sweep names that are not registered are left out with a warning.
-Resumable like every sweep; `--report-only` runs nothing.
+with depth noise). `--quick` runs `robustness_small.yaml` instead (the CI subset, a few minutes) into
+runs/robustness_quick and out/robustness_quick. Methods a sweep names that are not registered are left out
+with a warning. Resumable like every sweep; `--report-only` runs nothing.
 """
 from __future__ import annotations
 

@@ -148,14 +148,16 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
 
     ablation_files = write_ablations(df_all, out)
     written += ablation_files
-    body = [f"<p class='links'>{' '.join(f'<a href={chr(39)}{p.name}{chr(39)}>{p.name}</a>' for p in ablation_files)}</p>"]
+    body = [f"<p class='links'>{' '.join(f'<a href={chr(39)}{p.name}{chr(39)}>{p.name}</a>' for p in ablation_files)}"
+            "</p>"]
     for knob in KNOBS:
         rows = ablation_rows(df_all, knob)
         if rows:
             body.append(table_html([{**r, "value": f"{r['value']:g}"} for r in rows],
                                    [("value", KNOBS[knob][0], None), ("n", "n", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3),
-                                    ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1), ("time_s", "time (s)", 1),
-                                    ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)],
+                                    ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1),
+                                    ("time_s", "time (s)", 1), ("paper_cd", "paper CD", 1, ".2f"),
+                                    ("paper_faces", "paper faces", 1)],
                                    paper_cols=("paper_cd", "paper_faces")))
     sections.append(("Ablations: weight and quality regularisers (paper Tables 4 and 5)", "\n".join(body)))
     size_files = write_size(df_all[~is_robustness(df_all)] if len(df_all) else df_all, out)

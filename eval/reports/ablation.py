@@ -20,7 +20,8 @@ KNOBS = {"weight": ("lambda_weight", "lambda_quality", "ablation_weight", "Table
 #: The paper's Tables 4 and 5 (its shapes and units; CD as printed there).
 PAPER = {"weight": {1e-6: {"cd": 7.48, "faces": 4753}, 1e-5: {"cd": 8.08, "faces": 2809},
                     1e-4: {"cd": 10.82, "faces": 1786}},
-         "quality": {1e-4: {"cd": 7.60, "faces": 8266, "aspect": 2.33}, 1e-3: {"cd": 7.42, "faces": 8349, "aspect": 2.06},
+         "quality": {1e-4: {"cd": 7.60, "faces": 8266, "aspect": 2.33},
+                     1e-3: {"cd": 7.42, "faces": 8349, "aspect": 2.06},
                      1e-2: {"cd": 7.28, "faces": 10806, "aspect": 1.55}}}
 CSV_COLUMNS = ["knob", "value", "n", "cd_p2s", "cd_l1", "faces", "aspect_ratio", "time_s", "paper_cd", "paper_faces",
                "paper_aspect_ratio"]
@@ -45,8 +46,9 @@ def ablation_rows(df, knob: str) -> list[dict]:
     for v, g in sorted(sub.groupby("_value"), key=lambda kv: kv[0]):
         paper = next((row for p, row in PAPER[knob].items() if math.isclose(p, v, rel_tol=1e-9)), {})
         rows.append({"knob": swept, "value": float(v), "n": int(len(g)), "cd_p2s": _mean(g, "cd_p2s"),
-                     "cd_l1": _mean(g, "cd_l1"), "faces": _mean(g, "faces"), "aspect_ratio": _mean(g, "aspect_ratio_mean"),
-                     "time_s": _mean(g, "time_s"), "paper_cd": paper.get("cd"),
+                     "cd_l1": _mean(g, "cd_l1"), "faces": _mean(g, "faces"),
+                     "aspect_ratio": _mean(g, "aspect_ratio_mean"), "time_s": _mean(g, "time_s"),
+                     "paper_cd": paper.get("cd"),
                      "paper_faces": paper.get("faces"), "paper_aspect_ratio": paper.get("aspect")})
     return rows
 
@@ -64,13 +66,15 @@ def write_ablations(df, out: str | Path) -> list[Path]:
               f"{FRAME_NOTE} CD x1e-3 (point-to-surface and sample L1, both directions summed); aspect ratio: "
               "mean circumradius / (2 inradius). The paper's columns are its own shapes and units, for the trend "
               "only.", ""]
-        cols = [("value", swept, None), ("n", "n", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3),
-                ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1), ("time_s", "time (s)", 1),
+        cols = [("value", swept, None), ("n", "n", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3),
+                ("cd_l1", "CD L1 (x1e-3)", 1e3), ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1),
+                ("time_s", "time (s)", 1),
                 ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)]
         if knob == "quality":
             cols.append(("paper_aspect_ratio", "paper aspect ratio", 1, ".2f"))
         md.append(markdown([{**r, "value": f"{r['value']:g}"} for r in rows], cols) if rows
-                  else "_No ablation runs in the store yet: `dmesh bench eval/sweeps/ablation.yaml --work runs/paper`._\n")
+                  else "_No ablation runs in the store yet: "
+                       "`dmesh bench eval/sweeps/ablation.yaml --work runs/paper`._\n")
         md += ["", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
         md_path, csv_path = out / f"{stem}.md", out / f"{stem}.csv"
         write_text(md_path, "\n".join(md))

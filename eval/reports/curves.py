@@ -20,7 +20,8 @@ def curve_runs(df, input_kind: str = "pointcloud") -> list[dict]:
 
     if not len(df) or "info" not in df.columns:
         return []
-    sub = df[(df["input_kind"] == input_kind) & (df["status"] == "done")].sort_values(["method", "config_label", "shape"])
+    sub = df[(df["input_kind"] == input_kind) & (df["status"] == "done")].sort_values(
+        ["method", "config_label", "shape"])
     out, seen = [], set()
     for _, r in sub.iterrows():
         curve = (r["info"] or {}).get("curve") if isinstance(r["info"], dict) else None

@@ -9,7 +9,8 @@ from eval.io import write_text
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:24px auto;max-width:1200px;
 color:#222;padding:0 16px;line-height:1.4}
-h1{font-size:1.5em;margin-bottom:4px} h2{font-size:1.2em;margin-top:28px;border-bottom:1px solid #ddd;padding-bottom:3px}
+h1{font-size:1.5em;margin-bottom:4px} \
+h2{font-size:1.2em;margin-top:28px;border-bottom:1px solid #ddd;padding-bottom:3px}
 h3{font-size:1.0em;margin:18px 0 6px} p.note{color:#555;font-size:.88em;max-width:1000px}
 table{border-collapse:collapse;font-size:.85em;margin:6px 0 10px}
 th,td{border:1px solid #d6d6d6;padding:3px 8px;text-align:right;white-space:nowrap}

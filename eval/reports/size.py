@@ -192,7 +192,8 @@ def write_size(df, out: str | Path) -> list[Path]:
             ("faces", "faces", 1, ".0f"), ("cd_p2s", "CD p2s", 1e3), ("time_s", "time (s)", 1, ".0f"),
             ("fast_cd_p2s_at_faces", "fast start's CD p2s at these faces", 1e3), ("ratio", "ratio", 1, ".2f"),
             ("fast_default_faces", "fast (40K seeds) faces", 1, ".0f"),
-            ("fast_default_cd_p2s", "fast (40K seeds) CD p2s", 1e3), ("fast_default_time_s", "fast time (s)", 1, ".0f")]))
+            ("fast_default_cd_p2s", "fast (40K seeds) CD p2s", 1e3),
+            ("fast_default_time_s", "fast time (s)", 1, ".0f")]))
         if fig:
             md += ["", f"![CD against faces](figures/{fig.name})"]
     else:

@@ -207,7 +207,8 @@ def quality_row(r) -> dict:
     si = num(r.get("self_intersecting_faces"))
     out = {"nc_oriented": num(r.get("normal_consistency_oriented")),
            "oriented_fraction": num(r.get("oriented_fraction")),
-           "oriented_fraction_any_side": num(r.get("oriented_fraction_any_side")), "watertight": w, "watertight_text": "" if w is None else ("yes" if w else "no"),
+           "oriented_fraction_any_side": num(r.get("oriented_fraction_any_side")), "watertight": w,
+           "watertight_text": "" if w is None else ("yes" if w else "no"),
            "boundary_edges": num(r.get("boundary_edges")), "non_manifold_edges": num(r.get("non_manifold_edges")),
            "non_manifold_vertices": num(r.get("non_manifold_vertices")),
            "self_intersecting_faces": si if si is not None and si >= 0 else None}
