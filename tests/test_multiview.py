@@ -17,6 +17,7 @@ import pytest
 import torch
 
 from datasets import capture as cap
+from dmesh.recon.init import DEPTH_NOISY_RATIO
 from dmesh.recon.multiview import MultiViewConfig, reconstruct
 from common import fake_views
 
@@ -284,3 +285,22 @@ def test_cli_bad_capture_one_line(tmp_path, capsys, setup, match):
     assert code == 2, err
     assert err.strip().count("\n") == 0 and match in err, err
     assert not out.exists() and not list(tmp_path.glob("*.json"))
+
+
+@needs_gl
+def test_depth_start_smooths_the_pixels_when_they_look_noisy(sphere_views):
+    """`init_preset="auto"` (the default): clean depth pixels go to the point-cloud `fast` fit, pixels with
+    depth noise (0.5 % of the radius, as in the noisy-depth measurements) to `noisy`, which smooths them first; a preset
+    named explicitly is taken as it is."""
+    from datasets.corrupt import add_depth_noise
+    from dmesh.recon.multiview import depth_start_preset
+    from dmesh.recon.views import check_views, lifted_points
+
+    assert MultiViewConfig.depth().init_preset == "auto" == MultiViewConfig.refine().init_preset
+    clean = lifted_points(check_views(sphere_views))
+    noisy = lifted_points(check_views(add_depth_noise(sphere_views, 0.005, seed=0)))
+    preset, ratio = depth_start_preset(clean, "auto")
+    assert preset == "fast" and ratio < 0.5 * DEPTH_NOISY_RATIO
+    preset, ratio = depth_start_preset(noisy, "auto")
+    assert preset == "noisy" and ratio > 2 * DEPTH_NOISY_RATIO
+    assert depth_start_preset(noisy, "tiny") == ("tiny", None)

@@ -265,7 +265,8 @@ class MultiViewConfig(Presets):
 
     init: str = "grid"               # epoch 0 starts from a "grid" (upstream) or the "depth" pixels' DMesh
     init_points: int = 100_000       # "depth": lifted pixels given to the point-cloud reconstruction
-    init_preset: str = "fast"        # "depth": its `PointCloudConfig` preset
+    init_preset: str = "auto"        # "depth": its `PointCloudConfig` preset; "auto": "noisy" when the lifted
+                                     # pixels look noisy (dmesh.recon.init.DEPTH_NOISY_RATIO), else "fast"
     grid: int = 20                   # epoch 0: grid^3 real points
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
@@ -353,8 +354,8 @@ class MultiViewConfig(Presets):
             raise ValueError(f"MultiViewConfig.init must be one of {INIT_MODES}, got {self.init!r}")
         if int(self.init_points) < 10:
             raise ValueError(f"MultiViewConfig.init_points must be >= 10, got {self.init_points}")
-        if self.init_preset not in POINTCLOUD_PRESETS:
-            raise ValueError(f"MultiViewConfig.init_preset must be one of {POINTCLOUD_PRESETS}, "
+        if self.init_preset not in ("auto",) + POINTCLOUD_PRESETS:
+            raise ValueError(f"MultiViewConfig.init_preset must be one of {('auto',) + POINTCLOUD_PRESETS}, "
                              f"got {self.init_preset!r}")
         if self.interior not in INTERIOR_MODES:
             raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
@@ -449,8 +450,9 @@ MULTIVIEW_RECIPES = {
                    "6 views per step at 128 pixels; interior faces removed by apex and visibility, faces off the "
                    "captured depth dropped, the epoch whose mesh renders closest to the images kept, then its "
                    "vertices moved along their normals by a least-squares fit to the depth maps (not upstream)."),
-    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud `fast` fit to 100K lifted depth "
-                     "pixels, then the one-sheet interior rule and the depth filter; no image-loss step."),
+    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud fit to 100K lifted depth pixels "
+                     "(its `fast` preset, or `noisy`, which smooths them first, when they look noisy), then the "
+                     "one-sheet interior rule and the depth filter; no image-loss step."),
     "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
                      "tetrahedral-renderer steps (6 views per step), keeping the start when the steps do not "
                      "lower the image loss over all views."),

@@ -178,6 +178,10 @@ def smooth_points(points: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
 
 #: `noise_ratio` above which an input looks noisy; calibrated on the robustness inputs (docs/preset_choices.md).
 NOISY_RATIO = 0.1
+#: `noise_ratio` above which lifted depth pixels look noisy (the multi-view `depth` start's `init_preset="auto"`).
+#: Lower than `NOISY_RATIO`: depth pixels of overlapping views sample the surface far more densely and evenly than
+#: a point cloud, so clean ones lie much closer to their local planes (calibration: docs/preset_choices.md).
+DEPTH_NOISY_RATIO = 0.04
 
 
 def noise_ratio(points: np.ndarray, k: int = 16, workers: int = 1) -> float:

@@ -75,7 +75,7 @@ from dmesh.model import DMesh
 from dmesh.probability import dmin
 from dmesh.recon.config import MULTIVIEW_PRESETS as PRESETS, MultiViewConfig
 from dmesh.recon.depth_fit import DepthFitConfig, fit_to_depth
-from dmesh.recon.init import seeds_and_voronoi
+from dmesh.recon.init import DEPTH_NOISY_RATIO, noise_ratio, seeds_and_voronoi
 from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
 from dmesh.recon.optim import BoundedAdam
 from dmesh.recon.views import (BOX_MARGIN, Views, check_views, depth_channel, image_targets, lifted_points,
@@ -100,8 +100,9 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
                rng: np.random.Generator, info: dict):
     """Epoch 0's DMesh from the depth pixels (`init="depth"`; not upstream): `cfg.init_points` of the lifted
     mask pixels (a random subset, normalised frame) go through the point-cloud reconstruction
-    (`dmesh.recon.pointcloud.reconstruct`, preset `cfg.init_preset`), and its DMesh is mapped into this
-    frame (positions by the similarity, weights by its squared scale, so the power diagram is the same) with
+    (`dmesh.recon.pointcloud.reconstruct`, preset `cfg.init_preset`; "auto": `noisy` when the points' noise
+    ratio (`dmesh.recon.init.noise_ratio`) is above `DEPTH_NOISY_RATIO`, else `fast`), and its DMesh is mapped
+    into this frame (positions by the similarity, weights by its squared scale, so the power diagram is the same) with
     every point clipped into the box. The depth images are half of the multi-view input; lifted, they are
     a point cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid
     start refined through the images (see `MultiViewConfig.depth`)."""
@@ -111,15 +112,31 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     pts = (lifted_points(vw) - center) * scale
     if len(pts) > cfg.init_points:
         pts = pts[np.sort(rng.choice(len(pts), int(cfg.init_points), replace=False))]
-    pc_cfg = PointCloudConfig.preset(cfg.init_preset, seed=cfg.seed, orient=False)  # its mesh is not used
+    preset, ratio = depth_start_preset(pts, cfg.init_preset)
+    pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=False)  # its mesh is not used
     fit = reconstruct_points(pts, None, pc_cfg)
     dm = fit.dmesh
     back = 1.0 / fit.scale
     points = np.clip(dm.points.detach().double().numpy() * back + fit.center, -box, box)
     info["init_depth"] = {"lifted_points": int(len(pts)), "points": len(dm), "faces": int(len(fit.mesh.faces)),
-                          "seconds": fit.timings.get("total")}
+                          "seconds": fit.timings.get("total"), "preset": preset, "noise_ratio": ratio}
     return DMesh(points, dm.weights.detach().double().numpy() * back**2, dm.reals.detach().double().numpy(),
                  cfg.probability_config())
+
+
+def depth_start_preset(points: np.ndarray, requested: str) -> tuple[str, float | None]:
+    """(point-cloud preset, noise ratio or None) of the depth start: `requested` itself, except "auto", which
+    takes `noisy` (outliers dropped, then jet smoothing) when the lifted pixels `points` lie more than
+    `DEPTH_NOISY_RATIO` neighbour spacings off their local planes (`dmesh.recon.init.noise_ratio`), else `fast`.
+    Depth noise lifts every pixel off the surface along its ray; the smoothing takes most of it out, while on
+    clean pixels it only rounds edges, hence the measurement rather than one fixed preset."""
+    if requested != "auto":
+        return requested, None
+    ratio = noise_ratio(points)
+    preset = "noisy" if ratio > DEPTH_NOISY_RATIO else "fast"
+    log.info("depth start: the lifted pixels lie %.3f neighbour spacings off their local planes (median; noisy "
+             "above %.2f): point-cloud preset %r", ratio, DEPTH_NOISY_RATIO, preset)
+    return preset, ratio
 
 
 def _grid_points(n: int, extent: float, box: float) -> np.ndarray:
