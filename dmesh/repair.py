@@ -168,6 +168,23 @@ def winding_components(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     return (flips % 2).astype(bool), comp.astype(np.int64), int(n)
 
 
+def seam_components(faces: np.ndarray, comp: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: which of the `n` components (`comp`, per face) have a seam, an edge shared by exactly two of
+    their faces that both traverse in the same direction. After `winding_components`' flips only a
+    non-orientable component (a Mobius strip, or a sheet fused to itself) keeps one."""
+    f = np.asarray(faces, dtype=np.int64)
+    out = np.zeros(n, bool)
+    if len(f) == 0:
+        return out
+    he = _half_edges(f)
+    _, inverse, counts = edge_table(f)
+    order = np.argsort(inverse, kind="stable")
+    pairs = order[(counts[inverse] == 2)[order]].reshape(-1, 2)
+    same = (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)
+    out[np.asarray(comp)[pairs[same, 0] % len(f)]] = True
+    return out
+
+
 def sum_along_walks(nxt: np.ndarray, step: np.ndarray, max_doublings: int) -> tuple[np.ndarray, np.ndarray]:
     """Sum of `step` ((T,) ints or floats) along each node's path of `nxt` pointers to the sink (index
     len(nxt)), by pointer doubling, at most `max_doublings` rounds. Returns the (T,) sums and (T,) bool whether
@@ -192,11 +209,13 @@ def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int 
         normals: None, or (points (G, 3), normals (G, 3)) float64 oriented input samples in the same frame.
             A face's agreement is the cosine between its normal and the mean normal of the `k` input points
             nearest its centroid. Each component (`winding_components`) is turned to the side its faces
-            agree with (mean agreement by area; below `confident` / 2 either way, as without normals); then
-            each face that agrees or disagrees by at least `confident` is turned
-            to agree on its own: where a sheet meets itself at an edge (two layers fused by the
-            extraction), a component can be non-orientable and its seam would fall anywhere; the input
-            normals put it where the layers meet. Faces whose nearest normals cancel (a thin sheet sampled
+            agree with (mean agreement by area; below `confident` / 2 either way, as without normals); then,
+            in a component that cannot be wound consistently (`seam_components`), each face that agrees or
+            disagrees by at least `confident` is turned to agree on its own: where a sheet meets itself at an
+            edge (two layers fused by the extraction), a component can be non-orientable and its seam would
+            fall anywhere; the input normals put it where the layers meet. An orientable component turns only
+            whole, so its winding stays consistent (a fold that faces against its normals stays part of its
+            sheet rather than becoming a seam). Faces whose nearest normals cancel (a thin sheet sampled
             from both sides) follow their component. With `turn_faces` False no face turns on its own: for
             vectors that are not normals (directions towards the cameras that saw each point, which on a
             sheet seen from both sides point to either side patch by patch), whole components only.
@@ -227,7 +246,7 @@ def orient_sheets(vertices: np.ndarray, faces: np.ndarray, normals=None, k: int 
     turn = np.where(np.abs(vote) >= confident / 2, vote < 0, volume < 0)[comp]
     agree[turn] = -agree[turn]
     if turn_faces:
-        turn ^= agree <= -confident
+        turn ^= (agree <= -confident) & seam_components(f, comp, n)[comp]
     f[turn] = f[turn][:, ::-1]
     return f
 

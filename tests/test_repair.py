@@ -46,10 +46,10 @@ def test_sheets_meeting_at_an_edge_are_split_and_folds_dropped():
     assert keep.sum() == 4 and not keep[2]
 
 
-def test_a_sheet_turns_whole_when_its_vectors_are_not_normals():
+def test_an_orientable_sheet_turns_whole_whatever_its_vectors_say():
     """Directions towards cameras on a sheet seen from both sides point up on one half and down on the other:
-    face by face they would split the sheet's winding; with turn_faces=False the sheet turns whole, to the side
-    most of its area agrees with."""
+    face by face they would split the sheet's winding. A sheet that can be wound consistently turns whole, to
+    the side most of its area agrees with, with input normals (turn_faces) or without."""
     from eval.metrics import topology
 
     grid = trimesh.creation.box(extents=(2.0, 2.0, 0.0)).subdivide().subdivide()   # a flat square, doubled
@@ -58,11 +58,29 @@ def test_a_sheet_turns_whole_when_its_vectors_are_not_normals():
     v, f = np.asarray(sheet.vertices), np.asarray(sheet.faces)
     centres = v[f].mean(1)
     towards = np.where((centres[:, 0] < 0.4)[:, None], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0])  # 70 % up
-    patchy = repair.orient_sheets(v, f, (centres, towards))
-    whole = repair.orient_sheets(v, f, (centres, towards), turn_faces=False)
-    assert topology(v, patchy)["inconsistent_winding_edges"] > 0
-    assert topology(v, whole)["inconsistent_winding_edges"] == 0
-    assert (trimesh.Trimesh(v, whole, process=False).face_normals[:, 2] > 0).all()
+    for turn_faces in (True, False):
+        out = repair.orient_sheets(v, f, (centres, towards), turn_faces=turn_faces)
+        assert topology(v, out)["inconsistent_winding_edges"] == 0
+        assert (trimesh.Trimesh(v, out, process=False).face_normals[:, 2] > 0).all()
+
+
+def test_a_non_orientable_sheet_puts_its_seam_where_its_normals_turn():
+    """A Mobius strip has no consistent winding; with turn_faces its faces turn one by one to their normals,
+    so the one seam lies where the given normals flip, not where the spanning tree happened to close."""
+    strip = generate("mobius")
+    v, f = np.asarray(strip.vertices), np.asarray(strip.faces)
+    normals = trimesh.Trimesh(v, f, process=False).face_normals
+    rng = np.random.default_rng(0)
+    scrambled = f.copy()
+    turned = rng.random(len(f)) < 0.5
+    scrambled[turned] = scrambled[turned][:, ::-1]
+    flip, comp, n = repair.winding_components(scrambled)
+    assert n == 1 and repair.seam_components(np.where(flip[:, None], scrambled[:, ::-1], scrambled), comp, n)[0]
+    out = repair.orient_sheets(v, scrambled, (v[f].mean(1), normals), k=1)
+    agree = np.einsum("ij,ij->i", trimesh.Trimesh(v, out, process=False).face_normals, normals)
+    assert (agree > 0).all()
+    whole = repair.orient_sheets(v, scrambled, (v[f].mean(1), normals), k=1, turn_faces=False)
+    assert (np.einsum("ij,ij->i", trimesh.Trimesh(v, whole, process=False).face_normals, normals) < 0).any()
 
 
 def test_sheet_winding_follows_the_normals_or_the_volume():
