@@ -135,6 +135,7 @@ class SurfaceConfig:
     min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
     max_hole: int = 64         # holes of the closed part with at most this many edges are filled
     max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped
+    max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
@@ -146,6 +147,8 @@ class SurfaceConfig:
     def __post_init__(self):
         if int(self.directions) < 1:
             raise ValueError(f"SurfaceConfig.directions must be >= 1, got {self.directions}")
+        if not 0.0 <= self.max_debris <= 1.0:
+            raise ValueError(f"SurfaceConfig.max_debris must be in [0, 1], got {self.max_debris}")
         if not 0.0 <= self.max_open <= 1.0:
             raise ValueError(f"SurfaceConfig.max_open must be in [0, 1], got {self.max_open}")
         if not self.min_thickness >= 0.0:
@@ -212,6 +215,8 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
         crumbs = repair.crumbs(sheet, cfg.max_crumb)
+        if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
+            crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]
         info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()),
                     crumbs_dropped=int(crumbs.sum()))

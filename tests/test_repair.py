@@ -141,8 +141,10 @@ def test_surface_drops_stray_sheet_triangles_so_a_closed_part_stays_watertight()
     walls = hull.copy()
     inner_faces = np.flatnonzero((pd.faces >= len(pts)).all(1))  # faces among the interior points only
     walls[inner_faces[:1]] = True  # one stray triangle inside the ball
-    for max_crumb, expect_stray in ((4, False), (0, True)):
-        out = surface(pd, walls, config=SurfaceConfig(max_crumb=max_crumb))
+    # max_crumb: pieces this small go when all are; max_debris: a sheet part this small a fraction of the faces
+    # goes whatever its pieces' sizes (one stray face among about 800 is 1/800 of them).
+    for max_crumb, max_debris, expect_stray in ((4, 0.0, False), (0, 0.0, True), (0, 1e-3, True), (0, 0.01, False)):
+        out = surface(pd, walls, config=SurfaceConfig(max_crumb=max_crumb, max_debris=max_debris))
         mesh = trimesh.Trimesh(pd.points[out.vertices], out.faces, process=False)
         assert ((len(out.faces) == int(hull.sum()) + 1) == expect_stray
                 and out.info["crumbs_dropped"] == (not expect_stray))
