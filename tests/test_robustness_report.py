@@ -120,6 +120,11 @@ def test_budget_rows_hold_configs_and_densities(db):
     psr = {(r["config"], r["density"]): r for r in rows if r["method"] == "psr"}
     assert set(psr) == {("default", 1000), ("default", 200), ("depth=6", 1000)}
     assert psr[("default", 1000)]["faces"] == pytest.approx(2000) and psr[("depth=6", 1000)]["faces"] == 200
+    # Size knobs join the method's line; another recipe is a series of its own.
+    assert robustness._budget_method("dmesh", "num_init=5000") == "dmesh"
+    assert robustness._budget_method("psr", "") == "psr"
+    assert robustness._budget_method("dmesh", "preset=noisy") == "dmesh [preset=noisy]"
+    assert robustness._budget_method("nie", "epochs=600,grid=96") == "nie"
 
 
 def test_report_files_and_columns(db, tmp_path):

@@ -165,9 +165,21 @@ def _fmt_level(level) -> str:
     return f"{level:g}" if isinstance(level, float) else str(level)
 
 
+#: Config keys that only set a method's output size (eval/sweeps/robustness_budget.yaml, nie_budget.yaml). A config
+#: with any other key (a preset, a smoothing) is another recipe: the budget view shows it as a series of its own
+#: instead of joining it to the method's size line.
+BUDGET_KNOBS = frozenset({"num_init", "depth", "resolution", "relative_alpha", "grid", "epochs"})
+
+
+def _budget_method(name: str, clabel: str) -> str:
+    keys = {part.split("=", 1)[0] for part in clabel.split(",") if part}
+    return name if keys <= BUDGET_KNOBS else f"{name} [{clabel}]"
+
+
 def budget_rows(df) -> list[dict]:
     """Matched budget: per input kind, method, class, config and density, mean faces and CD p2s of the runs on
-    clean geometry (the clean variant, or density alone), in raw units."""
+    clean geometry (the clean variant, or density alone), in raw units. A config that is not a size knob
+    (`BUDGET_KNOBS`) names its own series: `dmesh [preset=noisy]`."""
     from eval.reports.tables import display_name
 
     if df is None or not len(df):
@@ -179,7 +191,8 @@ def budget_rows(df) -> list[dict]:
         dens = g["inputs_json"].map(lambda s: (s.get("corruption") or {}).get("density", s.get("n_points")))
         for d in sorted(set(dens), key=lambda v: -(v or 0)):
             agg = _aggregate(g[dens == d])
-            rows.append({"input": kind, "method": display_name(method, kind), "category": cat,
+            rows.append({"input": kind, "method": _budget_method(display_name(method, kind), clabel or ""),
+                         "category": cat,
                          "config": clabel or "default", "density": d, "n": agg["n"], "faces": agg["faces"],
                          "cd_p2s": agg["cd_p2s"], "time_s": agg["time_s"]})
     return rows
