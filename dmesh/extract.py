@@ -134,7 +134,8 @@ class SurfaceConfig:
                                # faces (by area) is an open part, not a solid (dmesh.solid.drop_open_regions)
     min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
     max_hole: int = 64         # holes of the closed part with at most this many edges are filled
-    max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped
+    max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped,
+                               # and so is a closed piece this small beside a larger one
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
@@ -227,9 +228,14 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices
         faces, vertices = repair.split_fans(faces, len(points))
         keep = repair.drop_crowding(points[vertices], faces)
+        folds = int((~keep).sum())
+        kept = np.flatnonzero(keep)
+        crumbs = repair.closed_crumbs(faces[kept], cfg.max_crumb)
+        keep[kept[crumbs]] = False
         faces = faces[keep]
         closed_count = int(keep[:len(closed)].sum())
-        info.update(split_vertices=int(len(vertices) - len(points)), folds_dropped=int((~keep).sum()))
+        info.update(split_vertices=int(len(vertices) - len(points)), folds_dropped=folds,
+                    closed_crumbs_dropped=int(crumbs.sum()))
     else:
         closed_count = len(closed)
     info["sheet_faces"] = int(len(faces) - closed_count)

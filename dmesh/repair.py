@@ -393,6 +393,30 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
     return small if small.all() else np.zeros(F, bool)
 
 
+def closed_crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
+    """(F,) bool: the faces of closed pieces of at most `max_faces` faces beside a larger piece.
+
+    Pieces are joined through edges that exactly two faces share (`winding_components`); a piece is closed
+    when each of its edges has two faces. The smallest real closed surface, a tetrahedron, has 4 faces; a
+    closed piece that small beside the mesh's real surface (one tet's boundary, or two faces on the same
+    three vertices) is debris of the extraction: it adds a component and, being flat or tiny, faces both
+    ways at once.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    if F == 0 or max_faces < 1:
+        return np.zeros(F, bool)
+    _, comp, n = winding_components(f)
+    _, inverse, counts = edge_table(f)
+    on_boundary = np.zeros(F, bool)
+    np.logical_or.at(on_boundary, np.arange(3 * F) % F, counts[inverse] != 2)
+    size = np.bincount(comp, minlength=n)
+    is_open = np.bincount(comp, on_boundary, n) > 0
+    if size.max() <= max_faces:
+        return np.zeros(F, bool)
+    return ((size <= max_faces) & ~is_open)[comp]
+
+
 def drop_crowding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) bool faces to keep: on each edge with more than two faces, the two largest.
 

@@ -159,3 +159,19 @@ def test_keep_flattest_drops_the_fin_across_a_flat_pair():
     keep = keep_flattest(v, f)
     assert keep.tolist() == [True, True, False, False]
     assert keep_flattest(v, f[:2]).all()                           # a manifold mesh keeps every face
+
+
+def test_closed_crumbs_are_tiny_closed_pieces_beside_a_larger_one():
+    """One tet's boundary and a two-face pillow beside a sphere go; the sphere alone, a tiny open piece and
+    a mesh made only of tiny closed pieces stay."""
+    ball = trimesh.creation.icosphere(subdivisions=1)
+    n = len(ball.vertices)
+    tet = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]) + n
+    pillow = np.array([[0, 1, 2], [0, 2, 1]]) + n + 4
+    lone = np.array([[0, 1, 2]]) + n + 7
+    faces = np.concatenate([ball.faces, tet, pillow, lone])
+    crumbs = repair.closed_crumbs(faces, 4)
+    assert crumbs.sum() == 6 and crumbs[len(ball.faces):len(ball.faces) + 6].all()
+    assert not repair.closed_crumbs(ball.faces, 4).any()
+    assert not repair.closed_crumbs(tet, 4).any()           # nothing larger beside it: it is the mesh
+    assert not repair.closed_crumbs(faces, 0).any()
