@@ -23,7 +23,7 @@ class DMeshMultiView(DMeshPointCloud):
     input_kind = "multiview"
 
     def default_config(self):
-        from dmesh.recon.config import MultiViewConfig
+        from dmesh.recon.multiview_config import MultiViewConfig
 
         return MultiViewConfig.fast()
 

@@ -31,7 +31,7 @@ Chamfer distance does not change). Where the input samples a closed surface the 
 2-manifold; the figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
 
 Multi-view filters (`filtered_faces`, `extract_filtered`; the interior rules of
-`dmesh.recon.config.INTERIOR_MODES`): "apex" is "no_interior" (a face whose two tets have a real apex is
+`dmesh.recon.multiview_config.INTERIOR_MODES`): "apex" is "no_interior" (a face whose two tets have a real apex is
 inside a solid block); "sheet" is "sheet"; "visible" keeps the faces that are the first hit of some pixel
 ray of some camera when the mesh is drawn opaque (`visible_faces`, `hard_render`); "both" is "no_interior"
 then "visible"; "none" keeps every real face. The depth filter (`depth_consistent_faces`), applied before
@@ -390,7 +390,7 @@ def filtered_faces(dm, threshold: float, pd, interior: str, cameras, render: boo
 
     Args:
         dm: `DMesh`; threshold: real value above which a point is real; pd: its `PowerDiagram`; interior: one
-            of `dmesh.recon.config.INTERIOR_MODES`; cameras: the `dmesh.camera.Camera`s of the visibility
+            of `dmesh.recon.multiview_config.INTERIOR_MODES`; cameras: the `dmesh.camera.Camera`s of the visibility
             test and the render; consistent: None, or a function (points, faces) -> (F,) bool of faces to
             keep (`depth_consistent_faces`), applied before the visibility test.
     """

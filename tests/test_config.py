@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from dmesh.recon.config import MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, MultiViewConfig, PointCloudConfig, as_tuple
+from dmesh.recon.config import MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, PointCloudConfig, as_tuple
+from dmesh.recon.multiview_config import MultiViewConfig
 
 
 def test_from_preset_applies_overrides_to_the_named_preset():
@@ -37,14 +38,14 @@ def test_a_scalar_means_the_same_in_every_tuple_field():
 
 @pytest.mark.parametrize("kind", ["pointcloud", "multiview"])
 def test_every_preset_has_a_recipe(kind):
-    from dmesh.recon import config
+    from dmesh.recon import config, multiview_config
 
-    recipes = getattr(config, f"{kind.upper()}_RECIPES")
+    recipes = getattr(config if kind == "pointcloud" else multiview_config, f"{kind.upper()}_RECIPES")
     assert set(recipes) == set(getattr(config, f"{kind.upper()}_PRESETS"))
     for steps, text in recipes.values():
         assert isinstance(steps, bool) and len(text) > 20
     # The rows the harness shows by default are the fast presets: one takes steps, one does not.
-    assert config.POINTCLOUD_RECIPES["fast"][0] is False and config.MULTIVIEW_RECIPES["fast"][0] is True
+    assert config.POINTCLOUD_RECIPES["fast"][0] is False and multiview_config.MULTIVIEW_RECIPES["fast"][0] is True
 
 
 def test_pointcloud_config_validation():

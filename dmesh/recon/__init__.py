@@ -1,6 +1,7 @@
 """Reconstruction procedures built on `dmesh.DMesh` (DESIGN.md section 6).
 
-- `config`: the settings, presets and recipes of every procedure (torch-free);
+- `config`, `multiview_config`: the settings, presets and recipes of the procedures (torch-free; the multi-view
+  ones apart, so that they change no point-cloud run's key);
 - `views`: multi-view input checks, normalisation, resampling and image targets;
 - `init`: the first points (seeds, Voronoi vertices, poles, carving);
 - `optim`: the bounded Adam step;

@@ -73,7 +73,7 @@ from dmesh.extract import (SurfaceConfig, depth_consistent_faces, extract_filter
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.model import DMesh
 from dmesh.probability import dmin
-from dmesh.recon.config import MULTIVIEW_PRESETS as PRESETS, MultiViewConfig
+from dmesh.recon.multiview_config import MULTIVIEW_PRESETS as PRESETS, MultiViewConfig
 from dmesh.recon.depth_fit import DepthFitConfig, fit_to_depth
 from dmesh.recon.init import DEPTH_NOISY_RATIO, noise_ratio, seeds_and_voronoi
 from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask

@@ -180,7 +180,8 @@ def build_config(kind: str, preset: str, seed: int, overrides: dict, steps: int 
     """The `PointCloudConfig` or `MultiViewConfig` of `kind` from a preset, the seed, `--steps` / `--normals`
     (point clouds only) and `--set` overrides (the config's `from_preset`); one-line ValueError for an
     unknown preset or key, a flag the kind does not take, or a bad value."""
-    from dmesh.recon.config import MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, MultiViewConfig, PointCloudConfig
+    from dmesh.recon.config import MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, PointCloudConfig
+    from dmesh.recon.multiview_config import MultiViewConfig
 
     cls, presets = (PointCloudConfig, POINTCLOUD_PRESETS) if kind == "pointcloud" else (MultiViewConfig,
                                                                                      MULTIVIEW_PRESETS)

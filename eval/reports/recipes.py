@@ -1,12 +1,13 @@
 """Which recipe made each DMesh row: gradient steps or an initialisation, and how it differs from the paper.
 
-The descriptions live beside the presets (`POINTCLOUD_RECIPES` and `MULTIVIEW_RECIPES` in `dmesh.recon.config`);
+The descriptions live beside the presets (`POINTCLOUD_RECIPES` in `dmesh.recon.config`, `MULTIVIEW_RECIPES` in `dmesh.recon.multiview_config`);
 this module matches them to the rows of a report by the run's config label ("preset=paper", or "" for the
 method's default preset, `fast`).
 """
 from __future__ import annotations
 
-from dmesh.recon.config import DEFAULT_PRESET, MULTIVIEW_RECIPES, POINTCLOUD_RECIPES
+from dmesh.recon.config import DEFAULT_PRESET, POINTCLOUD_RECIPES
+from dmesh.recon.multiview_config import MULTIVIEW_RECIPES
 
 #: The DMesh harness methods with presets, by input kind, and the recipes of their presets.
 DMESH_METHODS = {"pointcloud": {"dmesh": POINTCLOUD_RECIPES}, "multiview": {"dmesh_mv": MULTIVIEW_RECIPES}}
