@@ -304,3 +304,21 @@ def test_depth_start_smooths_the_pixels_when_they_look_noisy(sphere_views):
     preset, ratio = depth_start_preset(noisy, "auto")
     assert preset == "noisy" and ratio > 2 * DEPTH_NOISY_RATIO
     assert depth_start_preset(noisy, "tiny") == ("tiny", None)
+
+
+def test_the_depth_noise_bench_measures_what_the_start_measures(sphere, sphere_views):
+    """`python -m eval.bench depth_noise` (the calibration of DEPTH_NOISY_RATIO) lifts and measures the pixels
+    as the start does: on the tests' capture its ratios equal the start's on the same pixels, and its summary
+    says whether the threshold separates clean from noisy captures."""
+    from datasets.corrupt import add_depth_noise
+    from dmesh.recon.multiview import depth_start_preset
+    from dmesh.recon.views import check_views, lifted_points
+    from eval.bench import depth_noise
+
+    clean, noisy = depth_noise.ratios(sphere, sphere_views.views, sphere_views.resolution, (0.0, 0.005))
+    assert clean == pytest.approx(depth_start_preset(lifted_points(check_views(sphere_views)), "auto")[1])
+    pixels = lifted_points(check_views(add_depth_noise(sphere_views, 0.005, seed=0)))
+    assert noisy == pytest.approx(depth_start_preset(pixels, "auto")[1], rel=1e-6)
+    rows = [{"depth_noise": 0.0, "ratio": clean}, {"depth_noise": 0.005, "ratio": noisy}]
+    assert "separates them" in depth_noise.summary(rows, DEPTH_NOISY_RATIO)
+    assert "does NOT separate" in depth_noise.summary(rows, 2 * noisy)
