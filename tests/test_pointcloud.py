@@ -421,7 +421,8 @@ def test_fast_preset_open_shape_beats_poisson():
 def test_smoothing_takes_the_noise_out_of_a_noisy_cloud(caplog):
     """`smooth_k` (the `noisy` preset's): with Gaussian noise of 0.01 on a sphere sample, the fit to the
     jet-smoothed points is closer to the sphere than the fit to the raw points. Without smoothing the noisy
-    input gets a warning that names the preset; the clean one does not."""
+    input gets a warning that names the preset; the clean one does not. `auto_smooth_k` (the `fast` preset's)
+    smooths the noisy input exactly as `smooth_k` does and leaves the clean one as it is."""
     gt, pts, nrm = _shape_cloud("sphere", 20_000)
     noisy = pts + np.random.default_rng(2).normal(scale=0.01, size=pts.shape)
     cfg = PointCloudConfig.tiny(steps_phase1=0, steps_phase2=2)
@@ -432,15 +433,25 @@ def test_smoothing_takes_the_noise_out_of_a_noisy_cloud(caplog):
     with caplog.at_level("WARNING", logger="dmesh.recon.pointcloud"):
         smooth = reconstruct(noisy, nrm, dataclasses.replace(cfg, smooth_k=60))
         clean = reconstruct(pts, nrm, dataclasses.replace(cfg, steps_phase2=0))
+        auto = reconstruct(noisy, nrm, dataclasses.replace(cfg, auto_smooth_k=60))
+        auto_clean = reconstruct(pts, nrm, dataclasses.replace(cfg, steps_phase2=0, auto_smooth_k=60))
     assert "looks noisy" not in caplog.text
     assert raw.info["noise_ratio"] > 0.1 > clean.info["noise_ratio"]
+    assert (raw.info["smooth_k"], smooth.info["smooth_k"], auto.info["smooth_k"], auto_clean.info["smooth_k"]) \
+        == (0, 60, 60, 0)
+    assert np.array_equal(auto.mesh.vertices, smooth.mesh.vertices)
+    assert np.array_equal(auto_clean.mesh.vertices, clean.mesh.vertices)
     cd_raw, _ = _p2s_and_self_intersections(raw.mesh, gt)
     cd_smooth, _ = _p2s_and_self_intersections(smooth.mesh, gt)
     assert cd_smooth < 0.6 * cd_raw, (cd_raw, cd_smooth)
     assert PointCloudConfig.noisy().smooth_k > 0 and PointCloudConfig.fast().smooth_k == 0
+    assert PointCloudConfig.fast().auto_smooth_k == PointCloudConfig.noisy().smooth_k
+    assert PointCloudConfig.paper().auto_smooth_k == 0 == PointCloudConfig.noisy().auto_smooth_k
     for bad in (3, -1, 5000):
         with pytest.raises(ValueError, match="smooth_k"):
             PointCloudConfig(smooth_k=bad)
+        with pytest.raises(ValueError, match="auto_smooth_k"):
+            PointCloudConfig(auto_smooth_k=bad)
 
 
 def test_phase2_ends_once_the_mesh_has_settled():

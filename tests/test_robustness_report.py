@@ -271,3 +271,27 @@ def test_import_store_loads_the_export_and_keeps_what_the_store_has(db, tmp_path
         assert s.get(ROWS[0]["key"])["metrics_json"] == {"cd_p2s": 42.0}
     assert main(["-q", "import-store", "--work", str(work), "-i", str(tmp_path / "missing.gz")]) != 0
     assert "no store export" in capsys.readouterr().err
+
+
+def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_path):
+    """The calibration section: per corruption and level, the noise ratio DMesh's default runs recorded (min,
+    max) and how many smoothed; runs without the figure (older code) and other presets are left out."""
+    def dm(key, shape, corruption, info, config=""):
+        row = _row(key, "dmesh", shape, "closed", corruption, 1e-3, config=config)
+        return {**row, "info_json": info}
+
+    with Store(db) as s:
+        s.upsert(dm("n1", "torus", {"noise": 0.005}, {"noise_ratio": 0.2, "smooth_k": 120}))
+        s.upsert(dm("n2", "genus2", {"noise": 0.005}, {"noise_ratio": 0.15, "smooth_k": 120}))
+        s.upsert(dm("n3", "torus", {"density": 200}, {"noise_ratio": 0.05, "smooth_k": 0}))
+        s.upsert(dm("n4", "genus2", {"density": 200}, {"noise_ratio": 0.07}))  # older code: no choice recorded
+        s.upsert(dm("n5", "torus", {"noise": 0.01}, {"noise_ratio": 0.3, "smooth_k": 120}, config="preset=noisy"))
+    rows = {(r["corruption"], r["level"]): r for r in robustness.noise_rows(_df(db))}
+    assert set(rows) == {("noise", 0.005), ("density", 200)}
+    assert (rows[("noise", 0.005)]["ratio_min"], rows[("noise", 0.005)]["ratio_max"]) == (0.15, 0.2)
+    assert rows[("noise", 0.005)]["smoothed"] == "2 of 2" and rows[("density", 200)]["smoothed"] == "0 of 1"
+    assert rows[("density", 200)]["n"] == 2
+    robustness.write_robustness(_df(db), tmp_path / "rep", db, db.parent, renders=False)
+    md = (tmp_path / "rep" / "robustness.md").read_text()
+    assert "## How noisy DMesh found each input" in md
+    assert "| pointcloud | noise | 0.005 | 2 | 0.150 | 0.200 | 2 of 2 |" in md

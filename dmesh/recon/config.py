@@ -20,6 +20,8 @@ TRAIN_ALL = ("points", "weights", "reals")
 #: The default preset of both reconstructions.
 DEFAULT_PRESET = "fast"
 POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "tiny")
+#: Neighbours of the input smoothing of the `noisy` preset, and of `fast`'s when its input looks noisy.
+NOISY_SMOOTH_K = 120
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
 
@@ -93,6 +95,8 @@ class PointCloudConfig(Presets):
     smooth_k: int = 0               # > 0: then every input point is moved onto the quadratic jet fitted to its
                                     # smooth_k nearest neighbours (not upstream; dmesh.recon.init.smooth_points,
                                     # CGAL's jet smoothing): denoising for noisy scans; 0: off
+    auto_smooth_k: int = 0          # > 0 and smooth_k 0: smooth with this many neighbours only when the input
+                                    # looks noisy (noise_ratio above dmesh.recon.init.NOISY_RATIO); 0: off
     num_init: int = 10_000          # input points used as real seeds
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
     voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
@@ -140,9 +144,10 @@ class PointCloudConfig(Presets):
         for name in ints:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if int(self.smooth_k) != 0 and not 6 <= int(self.smooth_k) <= 1000:
-            raise ValueError(f"PointCloudConfig.smooth_k must be 0 (off) or in [6, 1000] (a quadratic jet has 6 "
-                             f"coefficients), got {self.smooth_k}")
+        for name in ("smooth_k", "auto_smooth_k"):
+            if int(getattr(self, name)) != 0 and not 6 <= int(getattr(self, name)) <= 1000:
+                raise ValueError(f"PointCloudConfig.{name} must be 0 (off) or in [6, 1000] (a quadratic jet has 6 "
+                                 f"coefficients), got {getattr(self, name)}")
         for name in ("steps_phase1", "steps_phase2", "phase2_patience", "real_ramp_steps", "knn_interval",
                      "save_every"):
             if int(getattr(self, name)) < 0:
@@ -184,21 +189,25 @@ class PointCloudConfig(Presets):
         statistical test that keeps sparse stretches of surface), 40K seeds and their poles (about 90K points;
         `dmesh.recon.init`) instead of 10K seeds and all their Voronoi vertices, faces far from the input
         carved (`carve_far_faces`, for holes and open borders), no phase-1 step, 10 phase-2 steps on 50K
-        target points and samples, one-sheet extraction (`dmesh.extract`). Why each choice:
-        docs/preset_choices.md; why no phase-1 step: `python -m eval.bench recipes`."""
-        base = dict(outlier_std=2.0, num_init=40_000, voronoi="poles", carve=5.0, max_voronoi=None,
+        target points and samples, one-sheet extraction (`dmesh.extract`). An input that looks noisy
+        (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`); clean
+        input is not. Why each choice: docs/preset_choices.md; why no phase-1 step: `python -m eval.bench
+        recipes`."""
+        base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=40_000, voronoi="poles", carve=5.0,
+                    max_voronoi=None,
                     num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16,
                     lambda_weight=0.0, real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
         return cls(**{**base, **overrides})
 
     @classmethod
     def noisy(cls, **overrides) -> "PointCloudConfig":
-        """For noisy scans (not upstream): the `fast` preset with its input smoothed. After `fast`'s outlier
-        filter every point moves onto the quadratic jet fitted to its 120 nearest
-        neighbours (`smooth_k`, CGAL's jet smoothing), which takes most of the noise off the surface normal.
-        On clean input the smoothing rounds curved parts and costs accuracy, so `fast` does not smooth.
-        Measurements: `reports/robustness.md` (the robustness sweep); the choice of k: docs/preset_choices.md."""
-        return cls.fast(**{**dict(smooth_k=120), **overrides})
+        """For noisy scans (not upstream): the `fast` preset with its input always smoothed. After `fast`'s
+        outlier filter every point moves onto the quadratic jet fitted to its 120 nearest neighbours
+        (`smooth_k`, CGAL's jet smoothing), which takes most of the noise off the surface normal. On clean
+        input the smoothing rounds curved parts and costs accuracy, so `fast` smooths only input that looks
+        noisy; this preset is for noise that `fast`'s measurement misses. Measurements: `reports/robustness.md`
+        (the robustness sweep); the choice of k: docs/preset_choices.md."""
+        return cls.fast(**{**dict(smooth_k=NOISY_SMOOTH_K, auto_smooth_k=0), **overrides})
 
     @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
@@ -226,13 +235,14 @@ POINTCLOUD_RECIPES = {
                     "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
                     "component; phase 2 ends once the mesh has not changed for 50 steps (upstream: all 500); "
                     "CPU kernels."),
-    "fast": (False, "an initialisation, no phase-1 step: stray input points dropped (not upstream), 40K seeds + "
-                    "their poles (not all Voronoi vertices), faces far from the input carved, then 10 phase-2 steps "
-                    "(reals only) on 50K target points and samples, K <= 16, one-sheet extraction. Differs: no "
-                    "position or weight optimisation, 4x the seeds, 10 of the paper's 1500 steps."),
+    "fast": (False, "an initialisation, no phase-1 step: stray input points dropped and, when the input looks "
+                    "noisy, the rest smoothed as `noisy` does (both not upstream), 40K seeds + their poles (not all "
+                    "Voronoi vertices), faces far from the input carved, then 10 phase-2 steps (reals only) on 50K "
+                    "target points and samples, K <= 16, one-sheet extraction. Differs: no position or weight "
+                    "optimisation, 4x the seeds, 10 of the paper's 1500 steps."),
     "noisy": (False, "not in the paper, for noisy scans: the `fast` preset (no phase-1 step) with its input "
-                     "smoothed after the outlier filter (every point moved onto the quadratic jet of its 120 "
-                     "nearest neighbours, CGAL's jet smoothing). On clean input it is several times worse than "
-                     "`fast`."),
+                     "always smoothed after the outlier filter (every point moved onto the quadratic jet of its 120 "
+                     "nearest neighbours, CGAL's jet smoothing), where `fast` smooths only input that looks noisy. "
+                     "On clean input it is several times worse than `fast`."),
     "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
 }

@@ -9,9 +9,11 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    `dmesh.recon.init.statistical_inliers`); info["outliers_dropped"] counts them. With `smooth_k` > 0
    (not upstream; the `noisy` preset) every remaining point then moves onto the quadratic jet fitted to its
    `smooth_k` nearest neighbours (`dmesh.recon.init.smooth_points`, CGAL's jet smoothing), which removes most
-   of the noise along the normal. The seeds and the Chamfer target are the smoothed points. Without it, an
-   input that looks noisy (`dmesh.recon.init.noise_ratio` above `NOISY_RATIO`) gets a warning naming the
-   `noisy` preset; info["noise_ratio"] holds the figure either way.
+   of the noise along the normal. With `auto_smooth_k` > 0 instead (the `fast` preset) that smoothing, with
+   `auto_smooth_k` neighbours, happens only when the input looks noisy (`dmesh.recon.init.noise_ratio` above
+   `NOISY_RATIO`). The seeds and the Chamfer target are the smoothed points. Without either, an input that
+   looks noisy gets a warning naming the `noisy` preset. info["noise_ratio"] holds the figure and
+   info["smooth_k"] the neighbours used (0: not smoothed).
 1. Normalise the input (mean to the origin, max norm 1); keep `num_target` of the points as the Chamfer
    target; initialise from `num_init` seeds (real) plus their Voronoi vertices in [-1, 1]^3 (imaginary),
    plus the 8 corners of [-1.25, 1.25]^3 (imaginary, also in the seeds' triangulation; they keep it
@@ -125,8 +127,15 @@ class _Run:
                 info["outliers_dropped"] = int((~keep).sum())
                 pts, nrm = pts[keep], None if nrm is None else nrm[keep]
             info["noise_ratio"] = noise_ratio(pts, workers=cfg.workers)
-            if cfg.smooth_k > 0:
-                pts = smooth_points(pts, min(cfg.smooth_k, len(pts) - 1), workers=cfg.workers)
+            k = cfg.smooth_k
+            if k == 0 and cfg.auto_smooth_k > 0 and info["noise_ratio"] > NOISY_RATIO:
+                k = cfg.auto_smooth_k
+                log.info("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
+                         "(median; clean samples of smooth surfaces lie under %.2f): smoothing it (%d neighbours)",
+                         info["noise_ratio"], NOISY_RATIO, k)
+            info["smooth_k"] = int(k)
+            if k > 0:
+                pts = smooth_points(pts, min(k, len(pts) - 1), workers=cfg.workers)
             elif info["noise_ratio"] > NOISY_RATIO:
                 log.warning("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
                             "(median; clean samples of smooth surfaces lie under %.2f); the `noisy` preset smooths "

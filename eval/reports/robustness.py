@@ -233,6 +233,44 @@ def dmesh_ratios(rows: list[dict]) -> list[dict]:
     return out
 
 
+def _measured_noise(kind: str, info) -> tuple[float | None, bool | None]:
+    """(noise ratio, smoothed) that a DMesh run measured on its input (`dmesh.recon.init.noise_ratio`): the
+    point-cloud `fast` preset's info "noise_ratio" / "smooth_k", the multi-view depth start's "init_depth"
+    figures; None where the run did not record them (runs by code from before the figure)."""
+    info = info if isinstance(info, dict) else {}
+    if kind == "multiview":
+        info = info.get("init_depth") if isinstance(info.get("init_depth"), dict) else {}
+        ratio, preset = info.get("noise_ratio"), info.get("preset")
+        return ratio, None if preset is None or ratio is None else preset == "noisy"
+    ratio, k = info.get("noise_ratio"), info.get("smooth_k")
+    return ratio, None if k is None else int(k) > 0
+
+
+def noise_rows(df) -> list[dict]:
+    """Per input kind, corruption and level: the noise ratio DMesh's default presets measured on the inputs
+    (point cloud: `fast`, which smooths above `NOISY_RATIO`; multi-view: the `depth` start, which takes the
+    `noisy` point-cloud preset above `DEPTH_NOISY_RATIO`), min and max over the runs, and how many of them
+    smoothed. The calibration of both thresholds on the sweeps' own inputs."""
+    if df is None or not len(df):
+        return []
+    sub = _labelled(df)
+    sub = sub[(sub["status"] == "done") & (sub["_label"].isin(("dmesh", "dmesh [preset=depth]")))]
+    out = []
+    for (kind, name), g in sub.groupby(["input_kind", "_name"], sort=True):
+        levels = {str(v): v for v in g["_level"]}
+        for key in sorted(levels, key=lambda k: _severity(name, levels[k], None)):
+            gl = g[g["_level"].map(str) == key]
+            seen = [_measured_noise(kind, i) for i in gl["info"]] if "info" in gl.columns else []
+            ratios = [r for r, _ in seen if r is not None]
+            if not ratios:
+                continue
+            flags = [s for r, s in seen if r is not None and s is not None]
+            out.append({"input": kind, "corruption": name, "level": levels[key], "n": len(ratios),
+                        "ratio_min": min(ratios), "ratio_max": max(ratios),
+                        "smoothed": f"{sum(flags)} of {len(flags)}" if flags else ""})
+    return out
+
+
 # --------------------------------------------------------------------------------------------------- plots
 
 def _pyplot():
@@ -395,7 +433,12 @@ def _safe(name: str) -> str:
 
 # --------------------------------------------------------------------------------------------------- files
 
-def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]]) -> str:
+NOISE_COLUMNS = [("input", "input", None), ("corruption", "corruption", None), ("level", "level", None),
+                 ("n", "runs", 1), ("ratio_min", "noise ratio, min", 1, ".3f"), ("ratio_max", "max", 1, ".3f"),
+                 ("smoothed", "smoothed", None)]
+
+
+def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]], noise=()) -> str:
     from eval.reports.tables import FRAME_NOTE, markdown
 
     cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
@@ -417,6 +460,16 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "shapes (those DMesh ran on); below 1, DMesh is the best. Presets only: the rows of studies with "
                 "other overrides are in the table above.",
                 "", markdown([{**r, "level": _fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS)]
+    if noise:
+        out += ["", "## How noisy DMesh found each input", "",
+                "The noise ratio DMesh's defaults measure on their input (`dmesh.recon.init.noise_ratio`: the median "
+                "distance of a point to the plane of its 16 nearest neighbours, in neighbour spacings), over the "
+                "runs of the default presets: point clouds, `fast` (after its outlier filter; it smooths the input "
+                "as `noisy` does above `NOISY_RATIO` = 0.1); multi-view, the `depth` start on the lifted pixels (it "
+                "takes the `noisy` point-cloud preset above `DEPTH_NOISY_RATIO` = 0.04). `smoothed`: how many of "
+                "the runs that recorded the choice smoothed (blank: runs by code from before the choice).",
+                "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
+                             NOISE_COLUMNS)]
     if budget:
         out += ["", "## Matched budget: CD p2s against output size (clean geometry)", "",
                 markdown(budget, [("input", "input", None), ("method", "method", None),
@@ -449,7 +502,7 @@ def write_robustness(df, out: str | Path, db: str | Path | None = None, work: st
              budget_plot(budget, kind, figdir / f"robustness_budget_{kind}.png")) if p is not None]
     scans = scan_renders(df, Path(db), Path(work or Path(db).parent), figdir) if renders and db else []
     md, csv, bcsv = out / "robustness.md", out / "robustness.csv", out / "robustness_budget.csv"
-    write_text(md, _markdown(rows, budget, ratios, figs, scans))
+    write_text(md, _markdown(rows, budget, ratios, figs, scans, noise_rows(df)))
     write_text(csv, to_csv([{**r, "level": _fmt_level(r["level"])} for r in rows], CSV_COLUMNS))
     write_text(bcsv, to_csv(budget, BUDGET_COLUMNS))
     body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV</a> "
