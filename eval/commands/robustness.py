@@ -1,13 +1,12 @@
 """`dmesh robustness`: run the robustness sweeps (corrupted inputs, simulated scans, matched budgets) and write
 the robustness report (`eval.reports.robustness`).
 
-By default five sweeps run into the store of `dmesh reproduce-tables` (runs/paper), so that one store (and its
+By default three sweeps run into the store of `dmesh reproduce-tables` (runs/paper), so that one store (and its
 committed export, `reports/store/runs.jsonl.gz`) is behind every report: `eval/sweeps/robustness.yaml` (point
-clouds: each corruption level by itself, and a realistic scan), `robustness_noisy.yaml` (DMesh's `noisy`
-preset on the inputs with noise), `robustness_budget.yaml` (each method at
-several output sizes on the clean input), `robustness_multiview.yaml` (depth noise, fewer views, fewer
-pixels) and `robustness_multiview_noisy.yaml` (DMesh's `depth` preset on smoothed lifted pixels, on the inputs
-with depth noise). `--quick` runs `robustness_small.yaml` instead (the CI subset, a few minutes) into
+clouds: each corruption level by itself, and a realistic scan), `robustness_budget.yaml` (each method at
+several output sizes on the clean input) and `robustness_multiview.yaml` (depth noise, fewer views, fewer
+pixels). DMesh's default presets smooth noisy input by themselves, so the sweeps that force the smoothing
+(`robustness_noisy.yaml`, `robustness_multiview_noisy.yaml`) are studies, run with `--sweep`. `--quick` runs `robustness_small.yaml` instead (the CI subset, a few minutes) into
 runs/robustness_quick and out/robustness_quick. Methods a sweep names that are not registered are left out
 with a warning. Resumable like every sweep; `--report-only` runs nothing.
 """
@@ -20,8 +19,7 @@ NAME = "robustness"
 HELP = "run the robustness sweeps (corrupted inputs, scans, matched budgets) and write reports/robustness.*"
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
-DEFAULT_SWEEPS = [str(SWEEPS / n) for n in ("robustness.yaml", "robustness_noisy.yaml", "robustness_budget.yaml",
-                                             "robustness_multiview.yaml", "robustness_multiview_noisy.yaml")]
+DEFAULT_SWEEPS = [str(SWEEPS / n) for n in ("robustness.yaml", "robustness_budget.yaml", "robustness_multiview.yaml")]
 QUICK_SWEEPS = [str(SWEEPS / "robustness_small.yaml")]
 
 log = logging.getLogger(__name__)
@@ -32,8 +30,8 @@ def add_arguments(p) -> None:
 
     p.add_argument("-o", "--out", help="report folder (default: reports; with --quick: out/robustness_quick)")
     p.add_argument("--sweep", nargs="+", metavar="YAML",
-                   help="sweep files (default: eval/sweeps/robustness.yaml, robustness_noisy.yaml, "
-                        "robustness_budget.yaml, robustness_multiview.yaml, robustness_multiview_noisy.yaml)")
+                   help="sweep files (default: eval/sweeps/robustness.yaml, robustness_budget.yaml, "
+                        "robustness_multiview.yaml)")
     p.add_argument("--quick", action="store_true",
                    help="the CI subset: eval/sweeps/robustness_small.yaml into runs/robustness_quick")
     add_sweep_arguments(p, "runs/paper")
