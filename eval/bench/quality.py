@@ -14,10 +14,10 @@ flag_box and suzanne (seed 0), and spot with seeds 1-4; multi-view, `depth` pres
 Figures: `oriented`, the area fraction of faces whose normal agrees with the GT normal at the GT point
 closest to the face centroid (closed GTs turned outward first, `datasets.meshes.orient_outward`); `any_side`,
 the same with each open piece on whichever side agrees more (`eval.metrics.oriented_fractions`: the side of a
-sheet seen in two-sided images is a convention, its consistency is not); watertight
-(every edge has two faces); boundary edges; non-manifold edges (more than two faces) and vertices (more than
-one fan of faces); CD p2s (`eval.metrics.chamfer_l1_p2s`, x1e-3, GT frame: vertex mean 0, max vertex norm
-1); `surface_s`, the seconds of the surface step.
+sheet seen in two-sided images is a convention, its consistency is not); watertight (every edge has two
+faces); boundary edges; non-manifold edges (more than two faces) and vertices (more than one fan of faces);
+edges whose two faces run them the same way (inconsistent winding); CD p2s (`eval.metrics.chamfer_l1_p2s`,
+x1e-3, GT frame: vertex mean 0, max vertex norm 1); `surface_s`, the seconds of the surface step.
 """
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def _gt(name: str):
 
 def figures(mesh, gt) -> dict:
     from dmesh import repair
-    from eval.metrics import chamfer_l1_p2s, oriented_fractions
+    from eval.metrics import chamfer_l1_p2s, oriented_fractions, topology
 
     f = np.asarray(mesh.faces, np.int64)
     counts = repair.edge_table(f)[2]
@@ -56,6 +56,7 @@ def figures(mesh, gt) -> dict:
             "watertight": bool(len(f) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "nonmanifold_edges": int((counts > 2).sum()),
             "nonmanifold_vertices": int(len(repair.nonmanifold_vertices(f))),
+            "inconsistent_winding_edges": int(topology(mesh.vertices, f)["inconsistent_winding_edges"]),
             "cd_p2s_1e3": 1e3 * chamfer_l1_p2s(mesh, gt)}
 
 
@@ -124,7 +125,7 @@ def main(out: str = "reports", quick: bool = False) -> None:
         rows += _multiview(name)
     rows += _mesh_to_dmesh()
     columns = ["input", "shape", "seed", "variant", "faces", "oriented", "any_side", "watertight", "boundary_edges",
-               "nonmanifold_edges", "nonmanifold_vertices", "cd_p2s_1e3", "surface_s"]
+               "nonmanifold_edges", "nonmanifold_vertices", "inconsistent_winding_edges", "cd_p2s_1e3", "surface_s"]
     rows = [{c: r.get(c, "") for c in columns} for r in rows]
     table = markdown_table(rows, columns,
                            {"oriented": ".4f", "any_side": ".4f", "cd_p2s_1e3": ".4g", "surface_s": ".1f"})
