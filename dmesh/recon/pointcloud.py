@@ -130,14 +130,14 @@ class _Run:
             k = cfg.smooth_k
             if k == 0 and cfg.auto_smooth_k > 0 and info["noise_ratio"] > NOISY_RATIO:
                 k = cfg.auto_smooth_k
-                log.info("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
+                log.info("the input looks noisy: its points lie %.3f neighbour spacings off their local planes "
                          "(median; clean samples of smooth surfaces lie under %.2f): smoothing it (%d neighbours)",
                          info["noise_ratio"], NOISY_RATIO, k)
             info["smooth_k"] = int(k)
             if k > 0:
                 pts = smooth_points(pts, min(k, len(pts) - 1), workers=cfg.workers)
             elif info["noise_ratio"] > NOISY_RATIO:
-                log.warning("the input looks noisy: its points lie %.2f neighbour spacings off their local planes "
+                log.warning("the input looks noisy: its points lie %.3f neighbour spacings off their local planes "
                             "(median; clean samples of smooth surfaces lie under %.2f); the `noisy` preset smooths "
                             "it first (multi-view `depth`: --set init_preset=noisy)", info["noise_ratio"],
                             NOISY_RATIO)
