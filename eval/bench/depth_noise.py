@@ -9,7 +9,7 @@ radius 1, cameras at distance 2) with the sweeps' depth noise (`datasets.corrupt
 as a fraction of the radius), at the capture sizes the sweeps use. The threshold must sit between the
 largest clean figure and the smallest noisy one; the summary below the table says by how much it does.
 
-Regenerate: `python -m eval.bench depth_noise` (a few minutes on 2 cores; `--quick`: the torus and the bowl
+Regenerate: `python -m eval.bench depth_noise` (`--quick`: the torus and the bowl
 at 64 views and 256 pixels only).
 """
 from __future__ import annotations

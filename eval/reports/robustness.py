@@ -461,13 +461,16 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "other overrides are in the table above.",
                 "", markdown([{**r, "level": _fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS)]
     if noise:
+        from dmesh.recon.init import DEPTH_NOISY_RATIO, NOISY_RATIO
+
         out += ["", "## How noisy DMesh found each input", "",
                 "The noise ratio DMesh's defaults measure on their input (`dmesh.recon.init.noise_ratio`: the median "
                 "distance of a point to the plane of its 16 nearest neighbours, in neighbour spacings), over the "
                 "runs of the default presets: point clouds, `fast` (after its outlier filter; it smooths the input "
-                "as `noisy` does above `NOISY_RATIO` = 0.1); multi-view, the `depth` start on the lifted pixels (it "
-                "takes the `noisy` point-cloud preset above `DEPTH_NOISY_RATIO` = 0.04). `smoothed`: how many of "
-                "the runs that recorded the choice smoothed (blank: runs by code from before the choice).",
+                f"as `noisy` does above `NOISY_RATIO` = {NOISY_RATIO:g}); multi-view, the `depth` start on the lifted "
+                f"pixels (it takes the `noisy` point-cloud preset above `DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g}). "
+                "`smoothed`: how many of the runs that recorded the choice smoothed (blank: runs by code from "
+                "before the choice).",
                 "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
                              NOISE_COLUMNS)]
     if budget:
