@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export OMP_NUM_THREADS ?= 2
 
-.PHONY: setup test test-slow demo bench reproduce-tables robustness clean
+.PHONY: setup test test-slow demo bench reproduce-tables reproduce-recipes robustness clean
 
 setup:
 	@bash tools/setup.sh
@@ -20,7 +20,10 @@ bench: setup
 	$(PY) -m eval.bench all
 
 reproduce-tables: setup
-	$(PY) -m eval.cli reproduce-tables -o reports
+	$(PY) -m eval.cli reproduce-tables --jobs 2 -o reports
+
+reproduce-recipes: setup
+	$(PY) -m eval.cli reproduce-tables --recipes -o reports
 
 robustness: setup
 	$(PY) -m eval.cli robustness --jobs 2 -o reports

@@ -199,6 +199,47 @@ def test_bundled_sweeps_load():
         assert s.methods and s.shapes, path
 
 
+def test_the_recipe_sweeps_run_on_the_tables_inputs_and_split_their_configs():
+    """recipes.yaml (`make reproduce-recipes`) takes the same shapes and input settings as paper.yaml, so their
+    runs share inputs and land in the same Table 2, and no configuration runs in both sets."""
+    tables, recipes = (Sweep.from_yaml(REPO / "eval" / "sweeps" / n) for n in ("paper.yaml", "recipes.yaml"))
+    assert recipes.shapes == tables.shapes and set(recipes.inputs) == set(tables.inputs)
+    for kind in recipes.inputs:
+        assert recipes.input_settings(kind) == tables.input_settings(kind), kind
+    for method in recipes.methods:
+        assert method in tables.methods
+        assert not {repr(c) for c in recipes.configs[method]} & {repr(c) for c in tables.configs.get(method, [{}])}
+
+
+def test_reproduce_tables_sets_keep_each_others_rows_in_the_report(fake, tmp_path, monkeypatch, capsys):
+    """`dmesh reproduce-tables` and `--recipes` run their own sweeps, then report every configuration in the
+    store: a run of one set keeps the other's rows in Table 2; `--sweep FILES` reports only those files' runs."""
+    import pandas as pd
+
+    from eval.cli import main
+    from eval.commands import reproduce_tables
+
+    def sweep_file(name, delay):
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(f"name: {name}\nmethods: [fake_hull]\nshapes: [sphere]\nn_points: 1500\n"
+                        f"metric_samples: 1500\nconfigs:\n  fake_hull:\n    - {{delay: {delay}}}\n")
+        return str(path)
+
+    monkeypatch.setattr(reproduce_tables, "DEFAULT_SWEEPS", [sweep_file("tables", 0.0)])
+    monkeypatch.setattr(reproduce_tables, "RECIPE_SWEEPS", [sweep_file("recipes", 0.01)])
+    work, rep = str(tmp_path / "work"), tmp_path / "rep"
+
+    def labels():
+        return sorted(set(pd.read_csv(rep / "table2_pointcloud.csv")["method"]))
+
+    base = ["-q", "reproduce-tables", "--work", work, "-o", str(rep), "--no-renders"]
+    assert main(base + ["--recipes"]) == 0
+    assert main(base) == 0
+    assert labels() == sorted(["fake_hull [delay=0.0]", "fake_hull [delay=0.01]"])
+    assert main(base + ["--sweep", sweep_file("tables", 0.0)]) == 0
+    assert labels() == ["fake_hull [delay=0.0]"]
+
+
 # --------------------------------------------------------------------------------------------------- sweeps
 
 def test_sweep_stores_done_rows_then_skips_them(fake, tmp_path):

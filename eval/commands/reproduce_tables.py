@@ -1,8 +1,18 @@
 """`dmesh reproduce-tables`: run the paper-style sweeps and write `reports/`.
 
-By default three sweeps run into one store: `eval/sweeps/paper.yaml` (Table 2: point cloud and multi-view
-reconstruction by class), `eval/sweeps/recipes_size.yaml` (the fast start at the paper preset's mesh sizes:
-`reports/recipes_size.md`) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh). Methods a sweep file names
+Two sets of sweeps run into one store:
+
+- the tables (default, `make reproduce-tables`): `eval/sweeps/paper.yaml` (Table 2: point cloud and multi-view
+  reconstruction by class, every method's default preset, DMesh's `fast` presets and the multi-view `depth`
+  start) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh);
+- the recipes (`--recipes`, `make reproduce-recipes`): DMesh's long gradient-step recipes,
+  `eval/sweeps/recipes.yaml` (the point-cloud `paper` and multi-view `refine` presets on the Table 2 shapes),
+  `eval/sweeps/recipes_size.yaml` (the fast start at the paper preset's mesh sizes: `reports/recipes_size.md`)
+  and `eval/sweeps/multiview_paper.yaml` (the multi-view `paper` preset, hours per shape).
+
+Either set then writes the reports from every configuration in the store (its latest run, as `--report-only`),
+so the recipes' rows stay in Table 2 after a run of the tables and the other way round; `--sweep FILES` runs
+those files and reports only their runs. Methods a sweep file names
 that are not registered (yet) are left out with a warning, and a sweep left without runs is skipped; methods
 named by `--methods` must exist. `--inputs` selects among each sweep's own input kinds; the other flags apply
 to every sweep. Resumable: finished runs are read from the store, so a second run with
@@ -19,7 +29,9 @@ NAME = "reproduce-tables"
 HELP = "run the paper-style sweeps and regenerate reports/ (tables, figures, index.html)"
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
-DEFAULT_SWEEPS = [str(SWEEPS / name) for name in ("paper.yaml", "recipes_size.yaml", "table1.yaml")]
+DEFAULT_SWEEPS = [str(SWEEPS / name) for name in ("paper.yaml", "table1.yaml")]
+#: `--recipes`: DMesh's long gradient-step recipes (hours; resumable), the multi-view paper preset last.
+RECIPE_SWEEPS = [str(SWEEPS / name) for name in ("recipes.yaml", "recipes_size.yaml", "multiview_paper.yaml")]
 
 log = logging.getLogger(__name__)
 
@@ -28,8 +40,11 @@ def add_arguments(p) -> None:
     from eval.commands.bench import add_sweep_arguments
 
     p.add_argument("-o", "--out", default="reports", help="report folder (default: reports)")
-    p.add_argument("--sweep", nargs="+", default=DEFAULT_SWEEPS, metavar="YAML",
-                   help="sweep files (default: eval/sweeps/paper.yaml, recipes_size.yaml and table1.yaml)")
+    p.add_argument("--sweep", nargs="+", default=None, metavar="YAML",
+                   help="sweep files, reported alone (default: eval/sweeps/paper.yaml and table1.yaml)")
+    p.add_argument("--recipes", action="store_true",
+                   help="run DMesh's long gradient-step recipes instead (eval/sweeps/recipes.yaml, recipes_size.yaml, "
+                        "multiview_paper.yaml: many hours on 2 cores, resumable)")
     add_sweep_arguments(p, "runs/paper")
     p.add_argument("--no-renders", action="store_true", help="skip the rendered figures (tables and plots only)")
     p.add_argument("--report-only", action="store_true",
@@ -79,10 +94,13 @@ def run(args) -> int:
               f"open {Path(args.out) / 'index.html'}")
         return 0
 
+    if args.sweep and args.recipes:
+        raise ValueError("--sweep and --recipes both choose the sweeps: give one of them")
+    files = args.sweep or (RECIPE_SWEEPS if args.recipes else DEFAULT_SWEEPS)
     # --inputs selects among each sweep's own input kinds (Table 1 keeps its mesh input and frame).
     wanted, args.inputs = args.inputs, None
     sweeps, named = [], set()
-    for path in args.sweep:
+    for path in files:
         sweep = build_sweep(args, path, strict=False)  # every file is validated before anything runs
         named.update(sweep.methods)
         if wanted:
@@ -114,8 +132,15 @@ def run(args) -> int:
     print(summary_text(runner.db_path, kinds, keys), end="")
     print(f"store {runner.db_path}")
     title = "DMesh harness: " + ", ".join(s.name for s in sweeps)
-    paths = write_reports(runner.db_path, args.out, work=Path(args.work), title=title,
-                          renders=not args.no_renders, keys=keys)
+    if args.sweep:  # the user's own sweep files: their runs alone
+        paths = write_reports(runner.db_path, args.out, work=Path(args.work), title=title,
+                              renders=not args.no_renders, keys=keys)
+    else:  # the built-in sets: every configuration in the store, so neither set's rows drop out of Table 2
+        from eval.export import keep_tables
+
+        with keep_tables(args.out):
+            paths = write_reports(runner.db_path, args.out, work=Path(args.work), title=title,
+                                  renders=not args.no_renders, keys=None)
     from eval.export import EXPORT_NAME, export_store
 
     n = export_store(runner.db_path, Path(args.out) / EXPORT_NAME)  # what --report-only reads on a clone

@@ -197,7 +197,7 @@ def write_size(df, out: str | Path) -> list[Path]:
         if fig:
             md += ["", f"![CD against faces](figures/{fig.name})"]
     else:
-        md.append("_No paper-preset point-cloud run in the store yet: `dmesh reproduce-tables` (paper.yaml and "
+        md.append("_No paper-preset point-cloud run in the store yet: `make reproduce-recipes` (recipes.yaml and "
                   "recipes_size.yaml)._\n")
     md += ["", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
     md_path, csv_path = out / "recipes_size.md", out / "recipes_size.csv"
