@@ -252,6 +252,39 @@ def test_tiny_corrupted_sweep_end_to_end(tmp_path):
                                                             ("outliers", "0.05")}
 
 
+def test_the_ci_subset_runs_every_method_on_every_corruption_and_each_one_costs_accuracy(tmp_path):
+    """`dmesh robustness --quick` (eval/sweeps/robustness_small.yaml), the robustness sweeps' CI subset, end to
+    end: every run finishes; the report has a row per method, class, corruption and level, its line plots and
+    the realistic-scan renders; and every corruption makes every method's mesh farther from the GT than the
+    clean input's (so the corrupted inputs reach the methods)."""
+    pytest.importorskip("open3d")
+    from eval.cli import main
+    from eval.sweep import Sweep
+
+    sweep = Sweep.from_yaml(Path(__file__).resolve().parents[1] / "eval" / "sweeps" / "robustness_small.yaml")
+    work, rep = tmp_path / "w", tmp_path / "rep"
+    assert main(["-q", "robustness", "--quick", "--jobs", "2", "--work", str(work), "-o", str(rep)]) == 0
+    with Store(work / "results.sqlite") as s:
+        statuses = [r["status"] for r in s.rows()]
+    assert statuses and set(statuses) == {"done"}
+    got = _read_csv(rep / "robustness.csv")
+    cd = {(r["method"], r["category"], r["corruption"], r["level"]): float(r["cd_p2s"]) for r in got}
+    methods = {"dmesh": "dmesh [preset=tiny]"}
+    for name in sweep.methods:
+        label = methods.get(name, name)
+        kinds = ("depth_noise",) if name == "tsdf" else ("noise", "outliers")
+        for category in ("closed", "open"):
+            for kind in kinds:
+                clean = cd[(label, category, kind, "0")]
+                worse = [v for (m, c, k, lv), v in cd.items() if (m, c, k) == (label, category, kind) and lv != "0"]
+                assert worse and min(worse) > clean, (label, category, kind)
+            if name != "tsdf":
+                scan = [v for (m, c, k, _), v in cd.items() if (m, c, k) == (label, category, "realistic_scan")]
+                assert len(scan) == 1 and scan[0] > cd[(label, category, "noise", "0")], (label, category)
+    for name in ("robustness_pointcloud", "robustness_multiview", "robustness_scan_torus", "robustness_scan_bowl"):
+        assert (rep / "figures" / f"{name}.png").stat().st_size > 0, name
+
+
 def test_import_store_loads_the_export_and_keeps_what_the_store_has(db, tmp_path, capsys):
     """`dmesh import-store`: a fresh work folder gets every exported run; a second import adds nothing, and a
     run the store already holds is not overwritten by the export's."""
