@@ -570,6 +570,8 @@ class SweepPlan:
     pending: int = 0        # to run
     known: int = 0          # pending runs with a stored run of the same configuration (any code version)
     known_s: float = 0.0    # the wall seconds of those stored runs (input preparation, method, metrics)
+    #: per method and config label ("psr", "dmesh [preset=paper]"): (pending runs, known runs, their seconds)
+    by_method: dict = dataclasses.field(default_factory=dict)
 
     def line(self, jobs: int = 1) -> str:
         """One line for the CLI, e.g. "sweep robustness: 546 runs, 500 stored, 46 to run; 40 of them took
@@ -581,6 +583,14 @@ class SweepPlan:
             if self.pending > self.known:
                 text += f", {self.pending - self.known} never ran"
         return text
+
+    def breakdown(self) -> list[str]:
+        """One line per method and config with pending runs, the longest stored total first, e.g.
+        "  dmesh_mv: 12 to run, 12 took 4.07 h"."""
+        rows = sorted(self.by_method.items(), key=lambda kv: (-kv[1][2], kv[0]))
+        return [f"  {label}: {pending} to run, {known} took {seconds / 3600:.2f} h"
+                + (f", {pending - known} never ran" if pending > known else "")
+                for label, (pending, known, seconds) in rows]
 
 
 def _stored(row: dict | None, retry_failed: bool) -> bool:
@@ -627,9 +637,13 @@ def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
             plan.pending += 1
             ident = json.dumps([spec.method, spec.config_label, spec.shape.id, spec.input_kind, dict(spec.inputs),
                                 int(spec.seed)], sort_keys=True, default=str)
+            label = spec.method + (f" [{spec.config_label}]" if spec.config_label else "")
+            pending, known, seconds = plan.by_method.get(label, (0, 0, 0.0))
             if ident in walls:
                 plan.known += 1
                 plan.known_s += walls[ident][1]
+                known, seconds = known + 1, seconds + walls[ident][1]
+            plan.by_method[label] = (pending + 1, known, seconds)
     return plan
 
 

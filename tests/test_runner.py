@@ -589,12 +589,15 @@ def test_plan_counts_stored_runs_and_times_the_rest_by_their_stored_twins(fake, 
     plan = plan_sweep(small_sweep(seeds=(0, 1)), runner)
     assert (plan.total, plan.stored, plan.pending, plan.known, plan.known_s) == (2, 0, 2, 1, 90.0)
     assert "1 never ran" in plan.line(2) and "(0.01 h at 2 jobs)" in plan.line(2)
+    assert plan.by_method == {"fake_hull": (2, 1, 90.0)}
+    assert plan.breakdown() == ["  fake_hull: 2 to run, 1 took 0.03 h, 1 never ran"]
     run_sweep(small_sweep(seeds=(1,)), runner)
     assert plan_sweep(small_sweep(seeds=(0, 1)), runner).stored == 1
     with Store(runner.db_path) as store:
         before = len(store.rows())
     assert main(["-q", "bench", "--methods", "fake_hull", "--shapes", "sphere", "--set", "n_points=1500",
                  "--work", str(tmp_path / "work"), "--plan"]) == 0
-    assert "sweep" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "sweep" in out and "  fake_hull: " in out
     with Store(runner.db_path) as store:
         assert len(store.rows()) == before  # nothing ran

@@ -120,12 +120,15 @@ def summary_text(db, kinds=None, keys=None) -> str:
 
 
 def print_plans(sweeps, runner) -> int:
-    """`--plan`: one line per sweep (`eval.runner.plan_sweep`) and the total; returns 0."""
+    """`--plan`: one line per sweep (`eval.runner.plan_sweep`), its pending runs per method and config, and the
+    total; returns 0."""
     from eval.runner import plan_sweep
 
     plans = [plan_sweep(s, runner) for s in sweeps]
     for plan in plans:
         print(plan.line(runner.jobs))
+        for line in plan.breakdown():
+            print(line)
     if len(plans) > 1:
         known_s, unknown = sum(p.known_s for p in plans), sum(p.pending - p.known for p in plans)
         print(f"all: {sum(p.pending for p in plans)} runs to run; the stored ones took {known_s / 3600:.2f} h "
