@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 _F32 = NDArray[np.float32]
 _F64 = NDArray[np.float64]
 _I32 = NDArray[np.int32]
+_I64 = NDArray[np.int64]
 _U8 = NDArray[np.uint8]
 #: CSR lists: (offsets (rows + 1,), indices) int32.
 _Csr = tuple[_I32, _I32]
@@ -38,6 +39,12 @@ def power_diagram(points: _F64, weights: _F64, tets: _I32,
 
 def merge_csr(off_a: _I32, idx_a: _I32, off_b: _I32, idx_b: _I32) -> _Csr:
     """Row-wise sorted union of two CSR lists."""
+
+def union_sorted_keys(a: _I64, b: _I64) -> _I64:
+    """Sorted union of two sorted unique face-key arrays (native/src/face_keys.h)."""
+
+def off_wdt_candidates(cand: _I64, wdt: _I64, hidden: _U8) -> tuple[_I64, _I64]:
+    """(faces (C', 3) sorted triples, keys (C',)): candidate keys not in the WDT's, no point hidden."""
 
 def csr_rows_changed(off_a: _I32, idx_a: _I32, off_b: _I32, idx_b: _I32) -> _U8:
     """(rows,) 1 where the two CSR lists' rows differ."""

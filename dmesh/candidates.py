@@ -61,11 +61,13 @@ class CandidateFaces:
         if len(self.keys) == 0:
             self.keys = keys.astype(np.int64, copy=True)
             return
-        pos = np.searchsorted(self.keys, keys).clip(max=len(self.keys) - 1)
-        new = keys[self.keys[pos] != keys]
-        if len(new):
-            # Two sorted runs: the stable sort (timsort) merges them in linear time.
-            self.keys = np.sort(np.concatenate([self.keys, new]), kind="stable")
+        # One linear merge (native): NumPy took a binary search per key, a concatenation and a sort.
+        self.keys = native.union_sorted_keys(self.keys, keys)
+
+    def off_wdt(self, wdt_keys: np.ndarray, hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((C', 3) int64 triples, (C',) int64 keys) of the candidates that are not WDT faces (`wdt_keys`,
+        sorted) and have no `hidden` point ((N,) bool), in key order: the faces a pass scores beside the WDT's."""
+        return native.off_wdt_candidates(self.keys, wdt_keys, hidden)
 
     @property
     def faces(self) -> np.ndarray:

@@ -141,6 +141,25 @@ def merge_csr(off_a, idx_a, off_b, idx_b):
 
 
 # ----------------------------------------------------------------------------------------------------------
+# Face-key sets (native/src/face_keys.h): linear merges of sorted int64 keys (`dmesh.wdt.face_keys`) for the
+# per-phase candidate faces (`dmesh.candidates`).
+# ----------------------------------------------------------------------------------------------------------
+
+def union_sorted_keys(a, b) -> np.ndarray:
+    """(U,) int64 sorted union of two sorted unique int64 key arrays; ValueError if either is not."""
+    i64 = lambda x: np.ascontiguousarray(x, dtype=np.int64)  # noqa: E731
+    return _native.union_sorted_keys(i64(a), i64(b))
+
+
+def off_wdt_candidates(cand, wdt, hidden) -> tuple[np.ndarray, np.ndarray]:
+    """((C', 3) int64 sorted triples, (C',) int64 keys) of the candidate keys `cand` (sorted unique) that are
+    not in `wdt` (sorted keys) and whose three points are not `hidden` ((n,) bool over the n points the keys
+    count)."""
+    i64 = lambda x: np.ascontiguousarray(x, dtype=np.int64)  # noqa: E731
+    return _native.off_wdt_candidates(i64(cand), i64(wdt), np.ascontiguousarray(hidden, dtype=np.uint8))
+
+
+# ----------------------------------------------------------------------------------------------------------
 # Fused Delta kernels (native/src/delta_recompute.h): argmin search and per-vertex distances in one forward
 # call, their analytic gradient in one backward call, on a `DeltaDiagram` handle (validated once per pass).
 # ----------------------------------------------------------------------------------------------------------

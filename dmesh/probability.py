@@ -300,12 +300,7 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
 
     with stage(timings, "candidates"):
         # Candidates not in the WDT with all three vertices owning a power cell (sorted by key).
-        ck = state.candidates.keys
-        pos = np.searchsorted(wdt_keys, ck).clip(max=len(wdt_keys) - 1)
-        cand_keys = ck[wdt_keys[pos] != ck]
-        cand = state.candidates.faces_of(cand_keys)
-        owned = ~(pd.hidden[cand[:, 0]] | pd.hidden[cand[:, 1]] | pd.hidden[cand[:, 2]])
-        cand, cand_keys = cand[owned], cand_keys[owned]
+        cand, cand_keys = state.candidates.off_wdt(wdt_keys, pd.hidden)
         hint_wdt = hint_cand = None
         if coherent:
             hint_wdt, hint_cand = state.coherence.hints(cfg.full_search_every, pd, cache, wdt_keys, order, cand,

@@ -38,3 +38,40 @@ def test_candidate_faces_validate():
         c.add([[0, 1, 9]])
     with pytest.raises(ValueError, match="cover"):
         NeighbourCache(5).update(wdt.Csr(np.zeros(3, np.int32), np.zeros(0, np.int32)))
+
+
+def test_the_native_key_merges_match_numpys_set_operations():
+    """`add_sorted_keys` and `off_wdt` (linear merges in native/src/face_keys.cpp) against NumPy's set
+    operations on random key sets with overlaps, empties and hidden points."""
+    rng = np.random.default_rng(3)
+    n = 40
+    for trial in range(20):
+        c = CandidateFaces(n)
+        expected = np.zeros(0, np.int64)
+        for _ in range(3):
+            keys = np.unique(rng.integers(0, n**3, rng.integers(0, 300)))
+            c.add_sorted_keys(keys)
+            expected = np.union1d(expected, keys)
+            np.testing.assert_array_equal(c.keys, expected)
+        wdt_keys = np.sort(np.concatenate([rng.choice(c.keys, min(len(c.keys), 50)) if len(c.keys) else
+                                           np.zeros(0, np.int64), rng.integers(0, n**3, 30)]))
+        hidden = rng.random(n) < 0.2
+        faces, keys = c.off_wdt(wdt_keys, hidden)
+        want = np.setdiff1d(c.keys, wdt_keys)
+        tri = c.faces_of(want)
+        want = want[~hidden[tri].any(1)]
+        np.testing.assert_array_equal(keys, want)
+        np.testing.assert_array_equal(faces, c.faces_of(want))
+
+
+def test_the_native_key_merges_refuse_unsorted_input():
+    from dmesh import native
+
+    with pytest.raises(ValueError, match="a must be sorted and unique"):
+        native.union_sorted_keys(np.array([3, 1]), np.array([2]))
+    with pytest.raises(ValueError, match="b must be sorted and unique"):
+        native.union_sorted_keys(np.array([1, 3]), np.array([2, 2]))
+    with pytest.raises(ValueError, match="wdt must be sorted"):
+        native.off_wdt_candidates(np.array([1, 2]), np.array([5, 4]), np.zeros(3, bool))
+    with pytest.raises(ValueError, match=r"\[0, n\^3\)"):
+        native.off_wdt_candidates(np.array([1, 27]), np.array([5]), np.zeros(3, bool))
