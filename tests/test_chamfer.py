@@ -13,7 +13,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from dmesh import native
-from dmesh.losses.chamfer import (IMPLS, ExpectedChamfer, SurfaceSamples, chamfer_l1, expected_distance,
+from dmesh.losses.chamfer import (ExpectedChamfer, SurfaceSamples, chamfer_l1, expected_distance,
                                   expected_min_distance, first_occurrence, sample_faces)
 from dmesh.reference.chamfer import target_term
 from common import assert_close
@@ -180,17 +180,16 @@ def test_knn_matches_cKDTree(kind, k):
 
 # ----------------------------------------------------------------------------------- ExpectedChamfer
 
-@pytest.mark.parametrize("k_max,n_samples,k_first", [(8, 300, 16), (50, 20, 16), (4, 1, 16), (40, 300, 4)])
-def test_impls_agree(rng, k_max, n_samples, k_first):
-    """native and reference ExpectedChamfer give the same loss, gradients and K (K > S included; the last
-    case takes its rows in two tiers)."""
+@pytest.mark.parametrize("k_max,n_samples", [(8, 300), (50, 20), (4, 1)])
+def test_impls_agree(rng, k_max, n_samples):
+    """native and reference ExpectedChamfer give the same loss, gradients and K (K > S included)."""
     target = _sphere(rng, 400)
     pts = torch.tensor(_sphere(rng, n_samples), requires_grad=True)
     prob = torch.tensor(rng.uniform(0.05, 0.95, n_samples), requires_grad=True)
     s = SurfaceSamples(pts, torch.from_numpy(rng.integers(0, n_samples // 2 + 1, n_samples)), prob)
     res = {}
     for impl in ("reference", "native"):
-        ec = ExpectedChamfer(target, k_max=k_max, impl=impl, workers=2, k_first=k_first)
+        ec = ExpectedChamfer(target, k_max=k_max, impl=impl, workers=2)
         loss, fig = ec(s)
         res[impl] = (loss.detach(), *_grads(loss, pts, prob, 1.0), fig["k"], ec.k, fig["residual"])
     ref, nat = res["reference"], res["native"]
@@ -264,39 +263,6 @@ def test_gradient_reaches_probabilities_and_positions(rng):
     loss.backward()
     assert prob.grad.abs().sum() > 0 and pts.grad.abs().sum() > 0
     assert torch.isfinite(prob.grad).all() and torch.isfinite(pts.grad).all()
-
-
-@pytest.mark.parametrize("impl", IMPLS)
-def test_rows_that_stop_at_k_first_drop_at_most_mass_tol(rng, impl):
-    """Two tiers of rows (`k_first`) against every row at K: each row drops at most `mass_tol` of probability
-    beyond its neighbours, so the loss moves by at most mass_tol times the largest distance; the rows that need
-    more than k_first neighbours get all K, and K adapts as with every row at K."""
-    target = _sphere(rng, 500)
-    n = 600
-    pts = torch.tensor(_sphere(rng, n) * rng.uniform(0.95, 1.05, (n, 1)), requires_grad=True)
-    p = np.where(rng.random(n) < 0.7, 0.999, rng.uniform(0.01, 0.3, n))  # most rows finish early, some do not
-    prob = torch.tensor(p, requires_grad=True)
-    face = torch.arange(n)
-    out = {}
-    for k_first in (0, 6):
-        ec = ExpectedChamfer(target, k_max=40, impl=impl, k_first=k_first, mass_tol=1e-4)
-        loss, fig = ec(SurfaceSamples(pts, face, prob))
-        out[k_first] = (loss.detach(), *_grads(loss, pts, prob, 1.0), fig, ec.k)
-        if k_first:
-            first = ec._target_rows(SurfaceSamples(pts, face, prob), pts.detach().numpy(), 6, None, False)[1]
-            hard = (first > 1e-4).sum().item()
-            assert 0 < hard < len(target) // 2      # both tiers are used
-    full, tiered = out[0], out[6]
-    assert abs(float(tiered[0] - full[0])) <= 1e-4 * 2.1  # distances on the unit sphere are below 2.1
-    assert float(tiered[0]) != float(full[0])             # the dropped tails are not empty
-    # The largest dropped mass differs (an early row drops up to mass_tol), but not on which side of mass_tol
-    # it lies, so K moves the same way.
-    assert (tiered[3]["residual"] > 1e-4) == (full[3]["residual"] > 1e-4)
-    assert tiered[3]["residual"] <= 1e-4 or tiered[3]["residual"] == full[3]["residual"]
-    assert tiered[4] == full[4] and tiered[3]["k"] == full[3]["k"]
-    for a, b in zip(tiered[1:3], full[1:3]):                # gradients: positions, probabilities
-        a, b = a.numpy().ravel(), b.numpy().ravel()
-        assert 0 < np.linalg.norm(a - b) < 1e-2 * np.linalg.norm(b)
 
 
 def test_adaptive_k():

@@ -11,11 +11,6 @@ Letters: N DMesh points, M scored faces, S samples drawn on the DMesh, G target 
   already appeared earlier in the row counts with probability 0 (at most one sample per face); expected
   nearest distance sum_i d_i P_i prod_{j<i} (1 - P_j) (mass beyond K is dropped, as upstream). K adapts
   between calls: +1 while any row keeps more than `mass_tol` of probability beyond K, -1 when none does.
-  Not upstream: a row stops at its `k_first` (16) nearest samples when it keeps at most `mass_tol` beyond
-  them, and only the other rows are searched to K. Every row then drops at most `mass_tol` of probability,
-  the bound the global K keeps for its worst row, and K adapts exactly as with every row at K. In the paper
-  preset K settles near 40 while fewer than 1 % of rows need more than 16, so the kNN search and the kernel
-  do about half the work (the full preset on the torus: see `docs/step_vs_upstream.md`).
 - Ours -> target: Lambda times the distance from each sample to its nearest target point.
 - Distances are Euclidean (not squared); both terms are means. With `lambda_normal` > 0 every distance
   becomes d + lambda_normal (1 - |n . n'|) (Eq. 13): target rows are re-sorted by that distance, and a
@@ -220,8 +215,6 @@ class ExpectedChamfer:
             tangential part of each offset, relative to the target point's normal, is scaled by it, which lowers
             the loss's sampling floor (`python -m eval.bench loss_floor`).
         k_normal: target neighbours searched per sample when the normal term is on.
-        k_first: neighbours every target row takes first; only rows that keep more than `mass_tol` of
-            probability beyond them take the full K (0, or at least K: every row takes K, as upstream).
         workers: threads of the k-d tree queries and of the native kernel.
         impl: "native" (kNN search and kernel in C++) or "reference" (torch and cKDTree); module docstring.
     Attributes:
@@ -237,7 +230,6 @@ class ExpectedChamfer:
     workers: int = 1
     impl: str = "native"
     tangent_weight: float = 1.0
-    k_first: int = 16
     k: int = field(init=False)
 
     def __post_init__(self):
@@ -250,8 +242,6 @@ class ExpectedChamfer:
             raise ValueError("target must be finite")
         if self.k_max < 1:
             raise ValueError(f"k_max must be >= 1, got {self.k_max}")
-        if self.k_first < 0:
-            raise ValueError(f"k_first must be >= 0, got {self.k_first}")
         if self.lambda_normal > 0 and self.target_normals is None:
             raise ValueError("lambda_normal > 0 needs target normals")
         if not 0.0 <= self.tangent_weight <= 1.0:
@@ -288,17 +278,17 @@ class ExpectedChamfer:
         tw = self.tangent_weight
         sp = samples.points.detach().numpy()
         k = min(self.k, s)
-        # Every row first takes its `k_first` nearest samples; only the rows that keep more than `mass_tol` of
-        # probability beyond them are searched again with the full K (module docstring).
-        k1 = min(k, self.k_first) if self.k_first > 0 else k
-        expected, residual = self._target_rows(samples, sp, k1, None, use_normals)
-        if k1 < k:
-            hard = np.flatnonzero(residual.numpy() > self.mass_tol)
-            if len(hard):
-                e_hard, r_hard = self._target_rows(samples, sp, k, hard, use_normals)
-                rows = torch.from_numpy(hard)
-                expected = expected.index_put((rows,), e_hard)
-                residual = residual.index_put((rows,), r_hard)
+        knn = self._knn(sp, k)
+        if self.impl == "native" and not use_normals:
+            expected, residual = expected_distance(self._target_t, samples.points, samples.prob, samples.face,
+                                                   knn, num_threads=self.workers,
+                                                   target_normals=self._normals_t if tw < 1.0 else None,
+                                                   tangent_weight=tw)
+        else:
+            expected, residual = target_term(self._target_t, samples.points, samples.prob, samples.face,
+                                             torch.from_numpy(knn.astype(np.int64, copy=False)),
+                                             self._normals_t, samples.normals,
+                                             self.lambda_normal if use_normals else 0.0, tw)
         cd_gt = expected.mean()
 
         kk = min(self.k_normal, len(self.target)) if use_normals or tw < 1.0 else 1
@@ -316,32 +306,14 @@ class ExpectedChamfer:
         return cd_gt + cd_ours, {"cd_gt": float(cd_gt.detach()), "cd_ours": float(cd_ours.detach()), "k": k,
                                  "residual": max_residual, "empty": False}
 
-    def _target_rows(self, samples: SurfaceSamples, sp: np.ndarray, k: int, rows: np.ndarray | None,
-                     use_normals: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """(expected, residual) of the target -> ours term over each target row's k nearest samples: all rows,
-        or the target rows `rows` (sorted ids)."""
-        target = self._target_t if rows is None else self._target_t[rows]
-        normals = self._normals_t if rows is None or self._normals_t is None else self._normals_t[rows]
-        knn = self._knn(sp, k, None if rows is None else self._target[rows])
-        if self.impl == "native" and not use_normals:
-            return expected_distance(target, samples.points, samples.prob, samples.face, knn,
-                                     num_threads=self.workers,
-                                     target_normals=normals if self.tangent_weight < 1.0 else None,
-                                     tangent_weight=self.tangent_weight)
-        return target_term(target, samples.points, samples.prob, samples.face,
-                           torch.from_numpy(knn.astype(np.int64, copy=False)), normals, samples.normals,
-                           self.lambda_normal if use_normals else 0.0, self.tangent_weight)
-
-    def _knn(self, points: np.ndarray, k: int, queries: np.ndarray | None = None) -> np.ndarray:
-        """(Q, k) ids of each query's k nearest samples, nearest first (int32 native, int64 SciPy); the
-        queries are the target points unless given."""
-        queries = self._target if queries is None else queries
+    def _knn(self, points: np.ndarray, k: int) -> np.ndarray:
+        """(G, k) ids of each target point's k nearest samples, nearest first (int32 native, int64 SciPy)."""
         if self.impl == "native":
-            return native.knn_search(points, queries, k, self.workers)
+            return native.knn_search(points, self._target, k, self.workers)
         from scipy.spatial import cKDTree
 
-        _, idx = cKDTree(points).query(queries, k, workers=self.workers)
-        return np.asarray(idx, dtype=np.int64).reshape(len(queries), k)
+        _, idx = cKDTree(points).query(self._target, k, workers=self.workers)
+        return np.asarray(idx, dtype=np.int64).reshape(len(self._target), k)
 
 
 def _z_order(points: np.ndarray) -> np.ndarray:
