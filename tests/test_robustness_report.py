@@ -336,3 +336,22 @@ def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_pat
     md = (tmp_path / "rep" / "robustness.md").read_text()
     assert "## How noisy DMesh found each input" in md
     assert "| pointcloud | noise | 0.005 | 2 | 0.150 | 0.200 | 2 of 2 |" in md
+
+
+def test_capture_size_levels_take_the_clean_level_from_a_clean_run_whatever_the_store_order(tmp_path):
+    """A views variant's own input settings hold its views; the clean level (and the row labelled clean) must come
+    from the clean run even when a variant was stored first (as after an import)."""
+    rows = []
+    for key, views, corruption, cd in (("v8", 8, {"views": 8}, 3e-3), ("v16", 16, {"views": 16}, 2e-3),
+                                       ("v64", 64, {}, 1e-3)):
+        r = _row(key, "tsdf", "torus", "closed", corruption, cd)
+        r["input_kind"] = "multiview"
+        r["inputs_json"]["views"] = views
+        rows.append(r)
+    path = tmp_path / "results.sqlite"
+    with Store(path) as s:
+        for r in rows:
+            s.upsert(r)
+    got = [r for r in robustness.robustness_rows(_df(path)) if r["corruption"] == "views"]
+    assert [r["level"] for r in got] == [64, 16, 8]
+    assert [r["setting"] for r in got] == ["clean", "views=16", "views=8"]

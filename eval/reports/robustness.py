@@ -146,8 +146,11 @@ def _factor_rows(gc, kind: str, label: str, cat: str, name: str) -> list[dict]:
     runs = gc[gc["_name"] == name]
     if not len(runs):
         return []
-    clean_value = clean_level(name, runs["inputs_json"].iloc[0]) if name in FACTORS else None
     clean = gc[gc["_name"] == "clean"]
+    # The clean level comes from a clean run's settings: a variant's own settings hold its level for the capture
+    # sizes (views, resolution), so the first run's would make whichever variant came first the clean one.
+    base = clean if len(clean) else runs
+    clean_value = clean_level(name, base["inputs_json"].iloc[0]) if name in FACTORS else None
     if name in FACTORS and len(clean):
         runs = pd.concat([clean.assign(_level=[clean_level(name, s) for s in clean["inputs_json"]]), runs])
     out = []
