@@ -61,7 +61,7 @@ class CandidateFaces:
         if len(self.keys) == 0:
             self.keys = keys.astype(np.int64, copy=True)
             return
-        # One linear merge (native): NumPy took a binary search per key, a concatenation and a sort.
+        # One linear merge of the two sorted runs (native).
         self.keys = native.union_sorted_keys(self.keys, keys)
 
     def off_wdt(self, wdt_keys: np.ndarray, hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

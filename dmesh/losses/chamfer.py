@@ -257,7 +257,7 @@ class ExpectedChamfer:
         # rows on nearby samples, which makes the native kernel about 1.5x faster (cache locality).
         order = _z_order(self.target)
         self._target = np.ascontiguousarray(self.target[order])
-        self._tree = cKDTree(self._target)
+        self._tree = cKDTree(self._target) if self.impl == "reference" else None  # native: knn_search
         self._target_t = torch.from_numpy(self._target)
         self._normals_t = (None if self.target_normals is None
                            else torch.from_numpy(np.ascontiguousarray(self.target_normals[order])))
@@ -292,7 +292,7 @@ class ExpectedChamfer:
         cd_gt = expected.mean()
 
         kk = min(self.k_normal, len(self.target)) if use_normals or tw < 1.0 else 1
-        if self.impl == "native":  # about 1.6x faster than the cKDTree on a step's samples, many far off
+        if self.impl == "native":  # the cKDTree is slow for samples far from the target
             j = native.knn_search(self._target, sp, kk, self.workers)
         else:
             j = self._tree.query(sp, kk, workers=self.workers)[1]
