@@ -67,6 +67,8 @@ class CandidateFaces:
     def off_wdt(self, wdt_keys: np.ndarray, hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """((C', 3) int64 triples, (C',) int64 keys) of the candidates that are not WDT faces (`wdt_keys`,
         sorted) and have no `hidden` point ((N,) bool), in key order: the faces a pass scores beside the WDT's."""
+        if len(hidden) != self.num_points:  # the keys decode with n = len(hidden)
+            raise ValueError(f"hidden covers {len(hidden)} points, the candidates {self.num_points}")
         return native.off_wdt_candidates(self.keys, wdt_keys, hidden)
 
     @property

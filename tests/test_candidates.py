@@ -73,5 +73,7 @@ def test_the_native_key_merges_refuse_unsorted_input():
         native.union_sorted_keys(np.array([1, 3]), np.array([2, 2]))
     with pytest.raises(ValueError, match="wdt must be sorted"):
         native.off_wdt_candidates(np.array([1, 2]), np.array([5, 4]), np.zeros(3, bool))
+    with pytest.raises(ValueError, match="hidden covers 4 points, the candidates 5"):
+        CandidateFaces(5).off_wdt(np.zeros(0, np.int64), np.zeros(4, bool))
     with pytest.raises(ValueError, match=r"\[0, n\^3\)"):
         native.off_wdt_candidates(np.array([1, 27]), np.array([5]), np.zeros(3, bool))
