@@ -138,6 +138,15 @@ def expected_chamfer_backward(target: _F32, points: _F32, prob: _F32, face: _I32
                               tangent_weight: float = 1.0) -> tuple[_F32, _F32]:
     """(grad_points (S, 3), grad_prob (S,)) in the inputs' float type."""
 
+class PointTree:
+    """A k-d tree of 3D points for repeated knn_search_trees calls."""
+    def __init__(self, points: _F64, leaf_size: int) -> None: ...
+    @property
+    def size(self) -> int: ...
+
+def knn_search_trees(data: PointTree, queries: PointTree, k: int, num_threads: int) -> _I32:
+    """knn_search of the trees' points: the same ids, without building the trees again."""
+
 @overload
 def knn_search(data: _F64, queries: _F64, k: int, num_threads: int) -> _I32: ...
 @overload

@@ -333,7 +333,8 @@ def _chamfer_inputs(fn: str, target, points, prob, face, knn, dtype) -> tuple:
     if f.dtype != INDEX_DTYPE and len(f) and (f.min() < 0 or f.max() > np.iinfo(INDEX_DTYPE).max):
         raise ValueError(f"{fn}: face ids must lie in [0, 2^31), got [{f.min()}, {f.max()}]")
     f = np.ascontiguousarray(f, dtype=INDEX_DTYPE)
-    # knn values are checked against [0, S) by the kernel (int64 ids from a k-d tree are below S < 2^31).
+    # knn values are checked against [0, S) by the kernel, -1 ending a row (int64 ids from a k-d tree are below
+    # S < 2^31).
     k = np.ascontiguousarray(_as_array(knn), dtype=INDEX_DTYPE)
     if k.ndim != 2 or len(k) != len(t):
         raise ValueError(f"{fn}: knn must have shape ({len(t)}, K) like target, got {k.shape}")
@@ -360,7 +361,8 @@ def expected_chamfer_forward(target, points, prob, face, knn, num_threads: int =
     Args:
         target: (G, 3); points: (S, 3); prob: (S,) floats, converted to `dtype` (float64 or float32).
         face: (S,) ints >= 0, face id of each sample; knn: (G, K) ints in [0, S), each row's sample ids sorted
-            by distance. num_threads: OpenMP threads (0: the OpenMP default).
+            by distance; a row ends early at its first -1 (rows of different lengths). num_threads: OpenMP
+            threads (0: the OpenMP default).
         target_normals: (G, 3) unit normals, or None; with a tangent_weight w below 1 the distances are
             sqrt(a^2 + w^2 (|o|^2 - a^2)) of the offset o and its normal part a, and each row is taken in
             increasing distance (not upstream; `dmesh.reference.chamfer.plane_weighted_distance`).
@@ -389,6 +391,18 @@ def expected_chamfer_backward(target, points, prob, face, knn, grad_expected, nu
         raise ValueError(f"{fn}: grad_expected must have shape ({len(t)},) like target, got {w.shape}")
     n, tw = _plane_inputs(fn, target_normals, tangent_weight, len(t))
     return _native.expected_chamfer_backward(t, p, pr, f, k, w, int(num_threads), n, tw)
+
+
+def point_tree(points, leaf_size: int):
+    """A `_native.PointTree` of (n, 3) points (float64) for repeated `knn_search_trees` calls: built once, on
+    either side of a search (as the query side, its leaves of at most `leaf_size` points are the groups)."""
+    return _native.PointTree(_rows3("point_tree", "points", "n", points, np.float64), int(leaf_size))
+
+
+def knn_search_trees(data, queries, k: int, num_threads: int = 0) -> np.ndarray:
+    """`knn_search` of two `point_tree`s: (Q, k) int32 ids of the k nearest `data` points of every `queries`
+    point, nearest first, the same ids as `knn_search` of their coordinates."""
+    return _native.knn_search_trees(data, queries, int(k), int(num_threads))
 
 
 def knn_search(data, queries, k: int, num_threads: int = 0, dtype=np.float64) -> np.ndarray:

@@ -13,7 +13,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from dmesh import native
-from dmesh.losses.chamfer import (ExpectedChamfer, SurfaceSamples, chamfer_l1, expected_distance,
+from dmesh.losses.chamfer import (IMPLS, ExpectedChamfer, SurfaceSamples, chamfer_l1, expected_distance,
                                   expected_min_distance, first_occurrence, sample_faces)
 from dmesh.reference.chamfer import target_term
 from common import assert_close
@@ -178,18 +178,69 @@ def test_knn_matches_cKDTree(kind, k):
         assert np.array_equal(ids, np.asarray(ref).reshape(len(queries), k))
 
 
+@pytest.mark.parametrize("kind,k,leaves", [("surface", 1, (8, 16)), ("surface", 30, (16, 8)),
+                                            ("cluster_far", 7, (3, 40)), ("grid_ties", 50, (1, 8))])
+def test_knn_of_built_trees_matches_knn_search(kind, k, leaves):
+    """Trees built once (`point_tree`) and searched either way give knn_search's ids, whatever their leaves."""
+    rng = np.random.default_rng(3)
+    if kind == "surface":
+        data, queries = _sphere(rng, 3000), _sphere(rng, 2000)
+    elif kind == "cluster_far":
+        data, queries = 0.01 * rng.standard_normal((500, 3)), 5 * rng.standard_normal((300, 3))
+    else:
+        g = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        data, queries = np.concatenate([g, g[:40]]), rng.integers(0, 5, (200, 3)) + 0.5 * rng.random((200, 3))
+    dt, qt = native.point_tree(data, leaves[0]), native.point_tree(queries, leaves[1])
+    assert dt.size == len(data) and qt.size == len(queries)
+    assert np.array_equal(native.knn_search_trees(dt, qt, k, 2), native.knn_search(data, queries, k, 2))
+    assert np.array_equal(native.knn_search_trees(qt, dt, 1, 1), native.knn_search(queries, data, 1, 1))
+    with pytest.raises(ValueError, match="k must be in"):
+        native.knn_search_trees(qt, dt, len(queries) + 1)
+    with pytest.raises(ValueError, match="not finite"):
+        native.point_tree(np.array([[0.0, np.nan, 0.0]]), 8)
+
+
+@pytest.mark.parametrize("normals", [False, True])
+def test_rows_ending_at_minus_one_are_the_shorter_rows(rng, normals):
+    """A knn row that ends early (-1 after its last candidate) gives, forward and backward, what the row
+    of its candidates alone gives (per-row calls), with and without the tangent-weighted distances."""
+    G, S, K = 30, 200, 12
+    target, pts, prob, face, knn = _problem(rng, G, S, K, faces=120)
+    length = rng.integers(1, K + 1, G)
+    ragged = knn.clone()
+    for g in range(G):
+        ragged[g, length[g]:] = -1
+    tn = torch.from_numpy(_sphere(rng, G)) if normals else None
+    kw = dict(target_normals=tn, tangent_weight=0.5 if normals else 1.0)
+    w = torch.from_numpy(rng.standard_normal(G))
+    e, r = expected_distance(target, pts, prob, face, ragged, **kw)
+    grads = _grads(e, pts, prob, w)
+    pts.grad = prob.grad = None
+    rows = []
+    for g in range(G):
+        kg = dict(kw, target_normals=None if tn is None else tn[g:g + 1])
+        eg, rg = expected_distance(target[g:g + 1], pts, prob, face, knn[g:g + 1, :length[g]], **kg)
+        rows.append((eg, rg))
+        (eg * w[g]).sum().backward()
+    assert_close(e, torch.cat([a for a, _ in rows]), 1e-14, what="expected")
+    assert_close(r, torch.cat([b for _, b in rows]), 1e-14, what="residual")
+    assert_close(grads[0], pts.grad, 1e-12, what="grad points")
+    assert_close(grads[1], prob.grad, 1e-12, what="grad prob")
+
+
 # ----------------------------------------------------------------------------------- ExpectedChamfer
 
-@pytest.mark.parametrize("k_max,n_samples", [(8, 300), (50, 20), (4, 1)])
-def test_impls_agree(rng, k_max, n_samples):
-    """native and reference ExpectedChamfer give the same loss, gradients and K (K > S included)."""
+@pytest.mark.parametrize("k_max,n_samples,k_first", [(8, 300, 16), (50, 20, 16), (4, 1, 16), (40, 300, 4)])
+def test_impls_agree(rng, k_max, n_samples, k_first):
+    """native and reference ExpectedChamfer give the same loss, gradients and K (K > S included; the last
+    case takes its rows in two tiers)."""
     target = _sphere(rng, 400)
     pts = torch.tensor(_sphere(rng, n_samples), requires_grad=True)
     prob = torch.tensor(rng.uniform(0.05, 0.95, n_samples), requires_grad=True)
     s = SurfaceSamples(pts, torch.from_numpy(rng.integers(0, n_samples // 2 + 1, n_samples)), prob)
     res = {}
     for impl in ("reference", "native"):
-        ec = ExpectedChamfer(target, k_max=k_max, impl=impl, workers=2)
+        ec = ExpectedChamfer(target, k_max=k_max, impl=impl, workers=2, k_first=k_first)
         loss, fig = ec(s)
         res[impl] = (loss.detach(), *_grads(loss, pts, prob, 1.0), fig["k"], ec.k, fig["residual"])
     ref, nat = res["reference"], res["native"]
@@ -263,6 +314,40 @@ def test_gradient_reaches_probabilities_and_positions(rng):
     loss.backward()
     assert prob.grad.abs().sum() > 0 and pts.grad.abs().sum() > 0
     assert torch.isfinite(prob.grad).all() and torch.isfinite(pts.grad).all()
+
+
+@pytest.mark.parametrize("impl", IMPLS)
+def test_rows_that_stop_at_k_first_drop_at_most_mass_tol(rng, impl):
+    """Two tiers of rows (`k_first`) against every row at K: each row drops at most `mass_tol` of probability
+    beyond its neighbours, so the loss moves by at most mass_tol times the largest distance; the rows that need
+    more than k_first neighbours get all K, and K adapts as with every row at K."""
+    target = _sphere(rng, 500)
+    n = 600
+    pts = torch.tensor(_sphere(rng, n) * rng.uniform(0.95, 1.05, (n, 1)), requires_grad=True)
+    p = np.where(rng.random(n) < 0.7, 0.999, rng.uniform(0.01, 0.3, n))  # most rows finish early, some do not
+    prob = torch.tensor(p, requires_grad=True)
+    face = torch.arange(n)
+    # Rows that keep more than mass_tol beyond their 6 nearest samples (independent of the class).
+    _, idx = cKDTree(pts.detach().numpy()).query(target, 6)
+    first = target_term(torch.from_numpy(target), pts, prob, face, torch.from_numpy(idx), None, None, 0.0)[1]
+    hard = int((first > 1e-4).sum())
+    assert 0 < hard < len(target) // 2  # both tiers are used
+    out = {}
+    for k_first in (0, 6):
+        ec = ExpectedChamfer(target, k_max=40, impl=impl, k_first=k_first, mass_tol=1e-4)
+        loss, fig = ec(SurfaceSamples(pts, face, prob))
+        out[k_first] = (loss.detach(), *_grads(loss, pts, prob, 1.0), fig, ec.k)
+    full, tiered = out[0], out[6]
+    assert abs(float(tiered[0] - full[0])) <= 1e-4 * 2.1  # distances on the unit sphere are below 2.1
+    assert float(tiered[0]) != float(full[0])             # the dropped tails are not empty
+    # The largest dropped mass differs (an early row drops up to mass_tol), but not on which side of mass_tol
+    # it lies, so K moves the same way.
+    assert (tiered[3]["residual"] > 1e-4) == (full[3]["residual"] > 1e-4)
+    assert tiered[3]["residual"] <= 1e-4 or tiered[3]["residual"] == full[3]["residual"]
+    assert tiered[4] == full[4] and tiered[3]["k"] == full[3]["k"]
+    for a, b in zip(tiered[1:3], full[1:3]):                # gradients: positions, probabilities
+        a, b = a.numpy().ravel(), b.numpy().ravel()
+        assert 0 < np.linalg.norm(a - b) < 1e-2 * np.linalg.norm(b)
 
 
 def test_adaptive_k():

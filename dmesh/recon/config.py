@@ -231,7 +231,9 @@ class PointCloudConfig(Presets):
 POINTCLOUD_RECIPES = {
     "paper": (True, "the published recipe: 10K seeds + all their Voronoi vertices, 1000 phase-1 steps (positions, "
                     "weights, reals) + 500 phase-2 steps (reals), lr 3e-4, 100K target points and samples, K <= 100. "
-                    "Differs: the 8 corners of [-1.25, 1.25]^3 are added as imaginary points, the mesh is the "
+                    "Differs: the 8 corners of [-1.25, 1.25]^3 are added as imaginary points, a target row of the "
+                    "expected Chamfer term stops at its 16 nearest samples when at most 1e-4 of probability lies "
+                    "beyond them (upstream: every row takes the global K), the mesh is the "
                     "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
                     "component; phase 2 ends once the mesh has not changed for 50 steps (upstream: all 500); "
                     "CPU kernels."),

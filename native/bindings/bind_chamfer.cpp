@@ -133,4 +133,40 @@ void bind_typed(nb::module_& m) {
 void bind_chamfer(nb::module_& m) {
   bind_typed<double>(m);
   bind_typed<float>(m);
+
+  nb::class_<PointTree>(m, "PointTree", "A k-d tree of 3D points for repeated knn_search_trees calls.")
+      .def(
+          "__init__",
+          [](PointTree* self, In<double> points, long leaf_size) {
+            require("PointTree", "points", points, -1, 3);
+            if (leaf_size < 1) {
+              throw std::invalid_argument("PointTree: leaf_size must be >= 1, got " + std::to_string(leaf_size));
+            }
+            nb::gil_scoped_release release;
+            new (self) PointTree(points.data(), index_t(points.shape(0)), index_t(leaf_size));
+          },
+          nb::arg("points").noconvert(), nb::arg("leaf_size"),
+          "PointTree(points (n,3) f64, leaf_size): the tree of the points (ids 0..n-1); as the query side of a\n"
+          "search its leaves of at most leaf_size points are the groups.")
+      .def_prop_ro("size", &PointTree::size);
+
+  m.def(
+      "knn_search_trees",
+      [](const PointTree& data, const PointTree& queries, long k, int num_threads) {
+        const char* fn = "knn_search_trees";
+        const long D = data.size(), Q = queries.size();
+        if (k < 0 || k > D) {
+          throw std::invalid_argument(std::string(fn) + ": k must be in [0, " + std::to_string(D) +
+                                      "] (the number of data points), got " + std::to_string(k));
+        }
+        std::vector<index_t> ids;
+        {
+          nb::gil_scoped_release release;
+          ids = knn_search(data, queries, index_t(k), KnnSettings{num_threads});
+        }
+        return to_numpy(std::move(ids), {size_t(Q), size_t(k)});
+      },
+      nb::arg("data"), nb::arg("queries"), nb::arg("k"), nb::arg("num_threads"),
+      "knn_search_trees(data PointTree, queries PointTree, k, num_threads) -> ids (Q,k) i32\n\n"
+      "knn_search of the trees' points: the same ids, without building the trees again.");
 }

@@ -148,6 +148,13 @@ struct RowDistances {
   }
 };
 
+// The candidates of a row: its entries up to the first kNone (shorter rows), or all K.
+inline index_t row_length(const index_t* row, index_t K) {
+  index_t L = 0;
+  while (L < K && row[L] != kNone) ++L;
+  return L;
+}
+
 [[noreturn]] void bad_knn(const char* fn, index_t S) {
   throw std::invalid_argument(std::string(fn) + ": knn holds a sample id outside [0, " + std::to_string(S) +
                               ")");
@@ -214,12 +221,13 @@ ExpectedChamferResult expected_chamfer_forward(const T* target, index_t G, const
 #pragma omp for schedule(dynamic, 256)
     for (index_t g = 0; g < G; ++g) {
       const index_t* row = knn + size_t(g) * size_t(K);
+      const index_t L = row_length(row, K);
       const T* t = target + 3 * size_t(g);
       double before = 1.0, e = 0.0;
       // One loop per distance kind, chosen at compile time: the Euclidean one is the kernel's plain loop.
       auto walk = [&](auto weighted_tag) {
         constexpr bool weighted = decltype(weighted_tag)::value;
-        for (index_t i = 0; i < K; ++i) {
+        for (index_t i = 0; i < L; ++i) {
           const index_t s = weighted ? row[rd.order[size_t(i)]] : row[i];
           if (s < 0 || s >= S) {
             bad.store(true, std::memory_order_relaxed);
@@ -236,7 +244,7 @@ ExpectedChamferResult expected_chamfer_forward(const T* target, index_t G, const
       };
       if (rd.normals == nullptr) {
         walk(std::false_type{});
-      } else if (rd.compute(g, t, row, K, S, points, 3)) {
+      } else if (rd.compute(g, t, row, L, S, points, 3)) {
         walk(std::true_type{});
       } else {
         bad.store(true, std::memory_order_relaxed);
@@ -283,9 +291,10 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
     RowDistances rd(settings, K);
     for (index_t g = 0; g < G; ++g) {
       const index_t* row = knn + size_t(g) * size_t(K);
+      const index_t L = row_length(row, K);
       // Skip rows with none of this thread's samples. A row found to be ours is checked in full below.
       bool mine = false, broken = false;
-      for (index_t i = 0; i < K && !mine; ++i) {
+      for (index_t i = 0; i < L && !mine; ++i) {
         const index_t s = row[i];
         if (s < 0 || s >= S) {
           broken = true;
@@ -299,12 +308,12 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
       const T* t = target + 3 * size_t(g);
       double b = 1.0;
       const bool weighted = rd.normals != nullptr;
-      if (weighted && !rd.compute(g, t, row, K, S, pack.data(), 8)) {
+      if (weighted && !rd.compute(g, t, row, L, S, pack.data(), 8)) {
         bad.store(true, std::memory_order_relaxed);
         continue;
       }
       bool valid = true;
-      for (index_t i = 0; i < K; ++i) {
+      for (index_t i = 0; i < L; ++i) {
         const index_t s = weighted ? row[rd.order[size_t(i)]] : row[i];
         if (s < 0 || s >= S) {
           valid = false;
@@ -327,7 +336,7 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
       // Backward through the suffix recursion (tail = T_{i+1}).
       const double w = grad_expected[g];
       double tail = 0.0;
-      for (index_t i = K - 1; i >= 0; --i) {
+      for (index_t i = L - 1; i >= 0; --i) {
         if (masked[size_t(i)]) continue;
         const double d = dist[size_t(i)], pi = p[size_t(i)], bi = before[size_t(i)];
         coef[size_t(i)] = d > 0.0 ? w * pi * bi / d : 0.0;  // dE/dd_i / d_i
@@ -336,7 +345,7 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
       }
       // This thread's samples, in candidate order. dd/dx = o / d, or ((1 - w^2) a n + w^2 o) / d (header).
       const double* n = rd.normals ? rd.normals + 3 * size_t(g) : nullptr;
-      for (index_t i = 0; i < K; ++i) {
+      for (index_t i = 0; i < L; ++i) {
         const index_t s = weighted ? row[rd.order[size_t(i)]] : row[i];
         if (masked[size_t(i)] || !owned(s)) continue;
         double* x = pack.data() + 8 * size_t(s);
@@ -379,9 +388,9 @@ ExpectedChamferGrad<T> expected_chamfer_backward(const T* target, index_t G, con
 // (squared distance, id): keys of the float32 squared distance, a counting-sort pass into equal-width
 // buckets and an insertion sort (4x faster than std::sort of (double, int) pairs here), then an exact
 // re-sort of runs of equal float32 keys. The output is exact and does not depend on the groups' radii,
-// hence not on the schedule or the thread count.
-namespace {
-
+// hence not on the schedule or the thread count. K = 1 takes a plain depth-first search per query instead.
+// The trees can be built once and searched many times (PointTree): the expected Chamfer term searches its
+// fixed target both ways every step.
 struct KdNode {
   double lo[3], hi[3];  // tight bounding box of the node's points
   index_t begin, end;   // the node's points are order[begin, end)
@@ -391,12 +400,17 @@ struct KdNode {
 struct KdTree {
   std::vector<KdNode> nodes;   // nodes[0] is the root (absent when there are no points)
   std::vector<index_t> order;  // point ids grouped by node
+  std::vector<index_t> where;  // where[id]: the point's position in `order`
   std::vector<double> xyz;     // (n, 3) coordinates, in `order`
+  index_t leaf_size = 0;       // largest leaf; as the query side of a search, its leaves are the groups
 };
+
+namespace {
 
 template <class T>
 KdTree build_kdtree(const T* pts, index_t n, index_t leaf_size) {
   KdTree t;
+  t.leaf_size = leaf_size;
   t.order.resize(size_t(n));
   for (index_t i = 0; i < n; ++i) t.order[size_t(i)] = i;
   if (n == 0) return t;
@@ -439,8 +453,10 @@ KdTree build_kdtree(const T* pts, index_t n, index_t leaf_size) {
     todo.push_back(child);
   }
   t.xyz.resize(3 * size_t(n));
+  t.where.resize(size_t(n));
   for (index_t j = 0; j < n; ++j) {
     for (int k = 0; k < 3; ++k) t.xyz[3 * size_t(j) + k] = double(pts[3 * size_t(t.order[size_t(j)]) + k]);
+    t.where[size_t(t.order[size_t(j)])] = j;
   }
   return t;
 }
@@ -577,27 +593,47 @@ constexpr double kSlack = 1e-9;     // relative widening of the search radii aga
 
 }  // namespace
 
-template <class T>
-std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, index_t Q, index_t K,
-                                const KnnSettings& settings) {
-  const char* fn = "knn_search";
-  if (D < 0 || Q < 0 || K < 0) throw std::invalid_argument(std::string(fn) + ": negative size");
-  if (K > D) {
-    throw std::invalid_argument(std::string(fn) + ": k = " + std::to_string(K) + " exceeds the " +
-                                std::to_string(D) + " data points");
+namespace {
+
+// The K nearest data points of every query of `qt`, written to out[(query id) * K ..] (see the method above).
+// The nearest point of q, (squared distance, id) smallest, improving on the bound (best2, best) given.
+void nearest_one(const KdTree& t, const double* q, double& best2, index_t& best, index_t node) {
+  const KdNode& nd = t.nodes[size_t(node)];
+  if (box_distance2(nd, q) > best2) return;
+  if (nd.child == kNone) {
+    for (index_t j = nd.begin; j < nd.end; ++j) {
+      const double d2 = distance2(q, t.xyz.data() + 3 * size_t(j));
+      const index_t id = t.order[size_t(j)];
+      if (d2 < best2 || (d2 == best2 && id < best)) {
+        best2 = d2;
+        best = id;
+      }
+    }
+    return;
   }
-  check_finite(fn, "data", data, D);
-  check_finite(fn, "queries", queries, Q);
-  std::vector<index_t> out(size_t(Q) * size_t(K));
-  if (K == 0 || Q == 0) return out;
-  const int threads = thread_count(settings.num_threads, std::int64_t(Q) * std::max<index_t>(K, 8));
-  KdTree dt, qt;
-#pragma omp parallel sections num_threads(std::min(threads, 2))
-  {
-#pragma omp section
-    dt = build_kdtree(data, D, kDataLeaf);
-#pragma omp section
-    qt = build_kdtree(queries, Q, kQueryLeaf);
+  const index_t a = nd.child, b = nd.child + 1;
+  const bool a_first = box_distance2(t.nodes[size_t(a)], q) <= box_distance2(t.nodes[size_t(b)], q);
+  nearest_one(t, q, best2, best, a_first ? a : b);
+  nearest_one(t, q, best2, best, a_first ? b : a);
+}
+
+void knn_trees(const KdTree& dt, const KdTree& qt, index_t K, int threads, index_t* out) {
+  if (K == 1) {
+    // One neighbour: a depth-first search per query, from the previous query's nearest point, is 1.2-1.5x
+    // faster than the groups below (their bounds from one point near the group centre are loose).
+    const index_t Q = index_t(qt.order.size()), chunk = 1024;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+    for (index_t c = 0; c < (Q + chunk - 1) / chunk; ++c) {
+      index_t best = dt.order[0];
+      for (index_t j = c * chunk; j < std::min(Q, (c + 1) * chunk); ++j) {
+        const double* q = qt.xyz.data() + 3 * size_t(j);
+        // Start from the previous query's nearest point (queries in tree order are near each other).
+        double best2 = distance2(q, dt.xyz.data() + 3 * size_t(dt.where[size_t(best)]));
+        nearest_one(dt, q, best2, best, 0);
+        out[size_t(qt.order[size_t(j)])] = best;
+      }
+    }
+    return;
   }
   std::vector<index_t> groups;
   for (index_t n = 0; n < index_t(qt.nodes.size()); ++n) {
@@ -644,7 +680,8 @@ std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, inde
         heap.clear();
         nearest_heap(dt, c, K, heap, 0);
         for (index_t i = 0; i < K; ++i) {
-          for (int k = 0; k < 3; ++k) kxyz[3 * size_t(i) + k] = double(data[3 * size_t(heap[size_t(i)].second) + k]);
+          const double* x = dt.xyz.data() + 3 * size_t(dt.where[size_t(heap[size_t(i)].second)]);
+          for (int k = 0; k < 3; ++k) kxyz[3 * size_t(i) + k] = x[k];
         }
       }
       // b_q: the largest distance from query q to those K points, an upper bound on q's K-th distance; every
@@ -673,7 +710,7 @@ std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, inde
           heap.clear();
           nearest_heap(dt, qt.xyz.data() + 3 * size_t(j), K, heap, 0);
           std::sort_heap(heap.begin(), heap.end());
-          index_t* row = out.data() + size_t(qt.order[size_t(j)]) * size_t(K);
+          index_t* row = out + size_t(qt.order[size_t(j)]) * size_t(K);
           for (index_t i = 0; i < K; ++i) row[i] = heap[size_t(i)].second;
         }
         continue;
@@ -699,10 +736,63 @@ std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, inde
         sel_d2.resize(n);
         sel_id.resize(n);
         // The selection holds the K nearest of c, so at least K points.
-        k_smallest(sel_d2, sel_id, K, key, start, out.data() + size_t(qt.order[size_t(j)]) * size_t(K));
+        k_smallest(sel_d2, sel_id, K, key, start, out + size_t(qt.order[size_t(j)]) * size_t(K));
       }
     }
   }
+}
+
+void check_k(const char* fn, index_t D, index_t Q, index_t K) {
+  if (D < 0 || Q < 0 || K < 0) throw std::invalid_argument(std::string(fn) + ": negative size");
+  if (K > D) {
+    throw std::invalid_argument(std::string(fn) + ": k = " + std::to_string(K) + " exceeds the " +
+                                std::to_string(D) + " data points");
+  }
+}
+
+}  // namespace
+
+template <class T>
+std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, index_t Q, index_t K,
+                                const KnnSettings& settings) {
+  const char* fn = "knn_search";
+  check_k(fn, D, Q, K);
+  check_finite(fn, "data", data, D);
+  check_finite(fn, "queries", queries, Q);
+  std::vector<index_t> out(size_t(Q) * size_t(K));
+  if (K == 0 || Q == 0) return out;
+  const int threads = thread_count(settings.num_threads, std::int64_t(Q) * std::max<index_t>(K, 8));
+  KdTree dt, qt;
+#pragma omp parallel sections num_threads(std::min(threads, 2))
+  {
+#pragma omp section
+    dt = build_kdtree(data, D, kDataLeaf);
+#pragma omp section
+    qt = build_kdtree(queries, Q, kQueryLeaf);
+  }
+  knn_trees(dt, qt, K, threads, out.data());
+  return out;
+}
+
+template <class T>
+PointTree::PointTree(const T* points, index_t n, index_t leaf_size) {
+  if (n < 0) throw std::invalid_argument("PointTree: negative size");
+  if (leaf_size < 1) throw std::invalid_argument("PointTree: leaf_size must be >= 1, got " + std::to_string(leaf_size));
+  check_finite("PointTree", "points", points, n);
+  tree = std::make_shared<const KdTree>(build_kdtree(points, n, leaf_size));
+}
+
+index_t PointTree::size() const { return tree ? index_t(tree->order.size()) : 0; }
+
+std::vector<index_t> knn_search(const PointTree& data, const PointTree& queries, index_t K,
+                                const KnnSettings& settings) {
+  const char* fn = "knn_search";
+  const index_t D = data.size(), Q = queries.size();
+  check_k(fn, D, Q, K);
+  std::vector<index_t> out(size_t(Q) * size_t(K));
+  if (K == 0 || Q == 0) return out;
+  const int threads = thread_count(settings.num_threads, std::int64_t(Q) * std::max<index_t>(K, 8));
+  knn_trees(*data.tree, *queries.tree, K, threads, out.data());
   return out;
 }
 
@@ -714,7 +804,8 @@ std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, inde
                                                                const index_t*, index_t, const index_t*,        \
                                                                index_t, const double*,                         \
                                                                const ExpectedChamferSettings&);      \
-  template std::vector<index_t> knn_search<T>(const T*, index_t, const T*, index_t, index_t, const KnnSettings&);
+  template std::vector<index_t> knn_search<T>(const T*, index_t, const T*, index_t, index_t, const KnnSettings&); \
+  template PointTree::PointTree(const T*, index_t, index_t);
 DMESH_INSTANTIATE(float)
 DMESH_INSTANTIATE(double)
 #undef DMESH_INSTANTIATE

@@ -27,9 +27,11 @@
 // per-thread partial sums. Rows in a spatial order (nearby targets next to each other) run faster.
 //
 // Face ids are any non-negative int32 values; they are compacted to dense ids when sparse. knn entries
-// must lie in [0, S); a bad entry raises std::invalid_argument.
+// must lie in [0, S), except that a row may end early: its candidates are the entries before its first
+// kNone (-1), for rows of different lengths in one (G, K) array; a bad entry raises std::invalid_argument.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "types.h"
@@ -84,6 +86,26 @@ struct KnnSettings {
 // hand (k-d trees, queries in groups); the method and its timings against SciPy are in expected_chamfer.cpp.
 template <class T>
 std::vector<index_t> knn_search(const T* data, index_t D, const T* queries, index_t Q, index_t K,
+                                const KnnSettings& settings);
+
+struct KdTree;  // expected_chamfer.cpp
+
+// A k-d tree of n points (ids 0..n-1), built once and searched many times, on either side of a search: as
+// the data side, or as the query side, whose leaves (at most leaf_size queries) are the search's groups.
+// The expected Chamfer term searches a fixed target both ways every step, so its tree is built once.
+// Immutable after construction; copies share the tree. Needs finite coordinates.
+class PointTree {
+ public:
+  PointTree() = default;
+  template <class T>
+  PointTree(const T* points, index_t n, index_t leaf_size);
+  index_t size() const;
+  std::shared_ptr<const KdTree> tree;
+};
+
+// knn_search over two built trees: for every point of `queries`, the ids of its K nearest points of `data`,
+// (Q, K), the same ids as knn_search of their coordinates (for any leaf sizes).
+std::vector<index_t> knn_search(const PointTree& data, const PointTree& queries, index_t K,
                                 const KnnSettings& settings);
 
 }  // namespace dmesh
