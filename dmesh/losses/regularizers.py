@@ -53,15 +53,20 @@ def real_regularizer(reals: torch.Tensor, faces: torch.Tensor, face_weights: tor
     """
     if len(faces) == 0:
         return torch.zeros((), dtype=torch.float64)
-    r = reals.double()[faces]
+    # One column per vertex: torch's reductions along a length-3 axis are several times slower than the
+    # column arithmetic (there are ~10^5-10^6 scored faces every step).
+    rv = reals.double()
+    r0, r1, r2 = rv[faces[:, 0]], rv[faces[:, 1]], rv[faces[:, 2]]
     w = face_weights.detach().double()
     total = w.sum().clamp_min(DIVISION_FLOOR)
     out = torch.zeros((), dtype=torch.float64)
     if smooth:
-        out = out + (w * (r - r.mean(1, keepdim=True).detach()).abs().mean(1)).sum() / total
+        m = ((r0 + r1 + r2) / 3.0).detach()
+        out = out + (w * ((r0 - m).abs() + (r1 - m).abs() + (r2 - m).abs()) / 3.0).sum() / total
     if grow:
-        near = (r.detach().max(1).values > grow_threshold).double()
-        out = out + (w * near * (1.0 - r).mean(1)).sum() / total
+        with torch.no_grad():
+            near = (torch.maximum(torch.maximum(r0, r1), r2) > grow_threshold).double()
+        out = out + (w * near * ((1.0 - r0) + (1.0 - r1) + (1.0 - r2)) / 3.0).sum() / total
     return out
 
 
