@@ -13,9 +13,8 @@ Letters: N DMesh points, M scored faces, S samples drawn on the DMesh, G target 
   between calls: +1 while any row keeps more than `mass_tol` of probability beyond K, -1 when none does.
   Not upstream: a row stops at its `k_first` (16) nearest samples when it keeps at most `mass_tol` beyond
   them, and only the other rows are searched to K. Every row then drops at most `mass_tol` of probability,
-  the bound the global K keeps for its worst row, and K adapts exactly as with every row at K. In the paper
-  preset K settles near 40 while few rows need more than 16, so the search and the kernel do less than half
-  the work.
+  the bound the global K keeps for its worst row, and K adapts exactly as with every row at K. It saves work
+  when the global K is set by a few rows (`python -m eval.bench step`).
 - Ours -> target: Lambda times the distance from each sample to its nearest target point.
 - Distances are Euclidean (not squared); both terms are means. With `lambda_normal` > 0 every distance
   becomes d + lambda_normal (1 - |n . n'|) (Eq. 13): target rows are re-sorted by that distance, and a
