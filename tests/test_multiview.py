@@ -183,8 +183,11 @@ def test_without_select_best_the_last_epoch_is_returned(sphere_views):
 
 
 @needs_gl
-def test_interrupted_run_resumes(sphere_views, tmp_path):
+def test_interrupted_run_resumes(sphere_views, tmp_path, one_thread):
+    """An interrupted run resumes from its last save and ends with the uninterrupted run's mesh, bit for bit
+    (the state carries the phase's candidate faces and neighbour cache)."""
     cfg = MultiViewConfig.tiny(steps_phase1=(3, 2), steps_phase2=(1, 1), save_every=1)
+    straight = reconstruct(sphere_views, cfg)
 
     class Stop(Exception):
         pass
@@ -202,6 +205,9 @@ def test_interrupted_run_resumes(sphere_views, tmp_path):
     assert resumed_from["seconds"] > 0
     assert [(r["epoch"], r["phase"], r["step"]) for r in seen if "step" in r] == [(1, 1, 1), (1, 2, 0)]
     assert len(res.history) == cfg.total_steps()
+    assert [r["loss"] for r in res.history] == [r["loss"] for r in straight.history]
+    assert np.array_equal(res.mesh.faces, straight.mesh.faces)
+    assert np.array_equal(res.mesh.vertices, straight.mesh.vertices)
     other = reconstruct(sphere_views, dataclasses.replace(cfg, seed=1), state_path=tmp_path / "s.pt")
     assert "resumed_from" not in other.info        # another config: starts over
 

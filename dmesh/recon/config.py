@@ -115,6 +115,8 @@ class PointCloudConfig(Presets):
     grad_clip: float | None = None  # per-point gradient norm clip (None: update_bound / lr)
     k_max: int = 100                # largest (and first) K of the target -> ours term
     mass_tol: float = 1e-4          # residual probability mass that makes K grow
+    k_first: int = 16               # samples every target row takes first; only rows keeping more than
+                                    # `mass_tol` beyond them are searched to K (not upstream); 0: all rows to K
     prob_threshold: float = 1e-3    # faces below this stratum factor are never sampled
     lambda_weight: float = 1e-8     # weight regulariser (power-diagram edge lengths)
     lambda_real_start: float = 1e-3  # real regulariser coefficient at phase-1 step 0
@@ -149,7 +151,7 @@ class PointCloudConfig(Presets):
                 raise ValueError(f"PointCloudConfig.{name} must be 0 (off) or in [6, 1000] (a quadratic jet has 6 "
                                  f"coefficients), got {getattr(self, name)}")
         for name in ("steps_phase1", "steps_phase2", "phase2_patience", "real_ramp_steps", "knn_interval",
-                     "save_every"):
+                     "save_every", "k_first"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("lr", "update_bound", "max_real", "domain", "alpha_wdt", "alpha_real"):
@@ -233,7 +235,7 @@ POINTCLOUD_RECIPES = {
                     "weights, reals) + 500 phase-2 steps (reals), lr 3e-4, 100K target points and samples, K <= 100. "
                     "Differs: the 8 corners of [-1.25, 1.25]^3 are added as imaginary points, a target row of the "
                     "expected Chamfer term stops at its 16 nearest samples when at most 1e-4 of probability lies "
-                    "beyond them (upstream: every row takes the global K), the mesh is the "
+                    "beyond them (upstream, and `k_first=0`: every row takes the global K), the mesh is the "
                     "one-sheet extraction (upstream: every face with three real vertices) and is oriented per "
                     "component; phase 2 ends once the mesh has not changed for 50 steps (upstream: all 500); "
                     "CPU kernels."),

@@ -54,8 +54,8 @@ The extraction rules are `dmesh.extract.filtered_faces` ("apex" is its "no_inter
 in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints); this module
 supplies each phase's step function (`_Run.phase1_step`, `_Run.phase2_step`).
 A run can be resumed from `state_path` (written atomically every `save_every` steps and at each phase end):
-the same input and config continue identically, except that the phase's candidate set and neighbour cache
-restart empty after a resume.
+the same input and config give the same mesh as an uninterrupted run (the state holds the parameters, the
+optimiser, the RNG, the epochs so far, the best epoch and the phase's candidate faces and neighbour cache).
 """
 from __future__ import annotations
 
@@ -183,7 +183,7 @@ class _Run:
                                           vw.world_to_camera.ravel().astype(np.float32)]), cfg)
         self.loop = Loop(callback, state_path, key, cfg.save_every,
                          extra_state=lambda: {"rng": self.rng.bit_generator.state, "epochs": self.info["epochs"],
-                                              "best": self.best})
+                                              "best": self.best, "probability": self.dm.state})
         self.clock = self.loop.clock
         self.best = None   # the epoch whose mesh renders closest to the images ("select_best")
         self.final = None  # the last epoch's (mesh, removed) when it is the output
@@ -260,6 +260,8 @@ class _Run:
             return 0, 1, 0
         epoch, phase, start = resumed["epoch"], resumed["phase"], resumed["step"]
         self.dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
+        if "probability" in resumed:  # (states written before it was saved lack it: the phase's caches restart)
+            self.dm.state = resumed["probability"]
         self.opt = BoundedAdam(self.dm.points, self.dm.weights, self.dm.reals, cfg.step_config(epoch),
                                TRAIN_ALL if phase == 1 else ("reals",))
         if resumed.get("optimizer") is not None:

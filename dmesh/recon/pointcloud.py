@@ -33,8 +33,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
 The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
 this module supplies each phase's step function (`_Run.phase1_step`, `_Run.phase2_step`).
 A run can be resumed from `state_path` (written atomically every `save_every` steps and at the end of each
-phase): same config and same input give the same continuation, except that the per-phase candidate set and
-neighbour cache restart empty after a resume (they are rebuilt within a few steps).
+phase): same config and same input give the same mesh as an uninterrupted run (the state holds the parameters,
+the optimiser, the Chamfer k, the RNG and the phase's candidate faces and neighbour cache).
 """
 from __future__ import annotations
 
@@ -112,7 +112,8 @@ class _Run:
         torch.manual_seed(cfg.seed)
         self.chamfer = None
         self.loop = Loop(callback, state_path, fingerprint(pts_in, cfg), cfg.save_every,
-                         extra_state=lambda: {"k": self.chamfer.k, "rng": self.rng.bit_generator.state}, probe=probe)
+                         extra_state=lambda: {"k": self.chamfer.k, "rng": self.rng.bit_generator.state,
+                                              "probability": self.dm.state}, probe=probe)
         self.clock = self.loop.clock
         self.with_normals = cfg.lambda_normal > 0
         self._phase2_mask, self._phase2_same = None, 0  # the last phase-2 mesh, and the steps it has held
@@ -168,15 +169,15 @@ class _Run:
             self.dm = dm = DMesh(positions, np.ones(len(positions)), reals, cfg.probability_config())
             uses_normals = cfg.lambda_normal > 0 or cfg.tangent_weight < 1.0
             self.chamfer = ExpectedChamfer(target, target_n if uses_normals else None, k_max=cfg.k_max,
-                                           mass_tol=cfg.mass_tol, lambda_normal=cfg.lambda_normal,
+                                           mass_tol=cfg.mass_tol, k_first=cfg.k_first, lambda_normal=cfg.lambda_normal,
                                            workers=cfg.workers, impl=cfg.kernels, tangent_weight=cfg.tangent_weight)
         self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
         return {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
                 "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": self.loop.fingerprint}
 
     def resume(self, info: dict) -> tuple[int, int]:
-        """(phase, first step) to run: (1, 0), or the saved position, whose DMesh, optimiser, Chamfer k and
-        RNG state replace the fresh ones."""
+        """(phase, first step) to run: (1, 0), or the saved position, whose DMesh (with its phase's candidate
+        faces and neighbour cache), optimiser, Chamfer k and RNG state replace the fresh ones."""
         from dmesh.model import DMesh
 
         cfg = self.cfg
@@ -188,6 +189,8 @@ class _Run:
             phase, start = 2, cfg.steps_phase2
         with torch.no_grad():
             self.dm = dm = DMesh(resumed["points"], resumed["weights"], resumed["reals"], cfg.probability_config())
+        if "probability" in resumed:  # (states written before it was saved lack it: the phase's caches restart)
+            dm.state = resumed["probability"]
         self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(),
                                cfg.train_phase1 if phase == 1 else ("reals",))
         if resumed.get("optimizer") is not None:
