@@ -27,7 +27,9 @@ def regular_triangulation(points, weights, *, parallel: bool | None = None) -> n
         points: (N, 3) float array (NumPy or torch); converted to float64.
         weights: (N,) float array, or None for zeros (plain Delaunay).
         parallel: True for TBB-parallel insertion, False sequential, None automatic (parallel from
-            `native.PARALLEL_THRESHOLD` points when TBB is compiled in). The tet set does not depend on it.
+            `native.PARALLEL_THRESHOLD` points when TBB is compiled in and torch may use more than one
+            thread, `torch.get_num_threads()`, the thread budget every kernel here follows). The tet set
+            does not depend on it.
 
     Returns:
         tets: (T, 4) int32, input indices of each finite tetrahedron (positively oriented).
@@ -61,6 +63,11 @@ class Triangulation:
 
 def triangulate(points, weights=None, *, parallel: bool | None = None) -> Triangulation:
     """Like `regular_triangulation`, also returning tet adjacency, duplicates and native timings."""
+    if parallel is None:
+        import torch
+
+        if torch.get_num_threads() <= 1:  # a one-thread budget: TBB would start a thread per core
+            parallel = False
     mode = -1 if parallel is None else int(bool(parallel))
     raw = native.regular_triangulation(points, weights, mode)
     s = raw.stats

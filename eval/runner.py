@@ -80,10 +80,13 @@ class RunnerConfig:
     retry_failed: bool = False     # rerun runs stored as failed
     lease_s: float = LEASE_S       # a run whose holder sent no heartbeat for this many seconds is taken over
     ray_address: str | None = None  # ray executor: cluster to join; None: $RAY_ADDRESS, else a local Ray
+    threads: int | None = None     # local executor: threads per run; None: the machine's cores / jobs
 
     def __post_init__(self):
         if not isinstance(self.jobs, int) or self.jobs < 1:
             raise ValueError(f"RunnerConfig.jobs: expected a positive integer, got {self.jobs!r}")
+        if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
+            raise ValueError(f"RunnerConfig.threads: expected a positive integer or None, got {self.threads!r}")
         if not isinstance(self.lease_s, (int, float)) or not self.lease_s > 0:
             raise ValueError(f"RunnerConfig.lease_s: expected a positive number of seconds, got {self.lease_s!r}")
         if self.executor not in EXECUTORS:
@@ -94,6 +97,34 @@ class RunnerConfig:
     @property
     def db_path(self) -> Path:
         return Path(self.db) if self.db else Path(self.work) / "results.sqlite"
+
+    @property
+    def threads_per_run(self) -> int:
+        """`threads`, else the cores this process may use divided among the `jobs` concurrent runs (at least 1):
+        runs side by side then share the cores instead of each starting a thread per core, which
+        oversubscribes them and makes a run's time depend on its neighbour's."""
+        if self.threads is not None:
+            return self.threads
+        return max(1, available_cores() // self.jobs)
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the platform tells it, else os.cpu_count())."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def limit_threads(n: int) -> None:
+    """Caps this process's compute threads at `n`: torch's intra-op pool (which the DMesh kernels and
+    renderers follow, `dmesh.render`, `dmesh.wdt`, `dmesh.losses.chamfer`), and the OpenMP, BLAS and
+    numexpr pools of libraries that start theirs later in this process."""
+    import torch
+
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+        os.environ[var] = str(n)
+    torch.set_num_threads(n)
 
 
 @dataclass
@@ -395,7 +426,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         return {"status": "failed", "error": one_line(exc)}
 
 
-def _child(spec: RunSpec, gt_path: str, work: str, conn) -> None:
+def _child(spec: RunSpec, gt_path: str, work: str, conn, threads: int) -> None:
     # Die with the parent: a killed sweep must not leave orphans computing runs nobody will store.
     try:
         import ctypes
@@ -404,6 +435,7 @@ def _child(spec: RunSpec, gt_path: str, work: str, conn) -> None:
     except (OSError, AttributeError):
         pass
     try:
+        limit_threads(threads)
         outcome = execute_run(spec, gt_path, work)
     except BaseException as exc:  # noqa: BLE001 - report KeyboardInterrupt etc. as a failure, then exit
         outcome = {"status": "failed", "error": one_line(exc)}
@@ -494,14 +526,16 @@ class _Claims:
         time.sleep(min(self.poll_s, max(0.05, self._next_poll - time.monotonic())))
 
 
-def _run_local(claims: _Claims, work: str, jobs: int, timeout_s: float, on_done: Callable) -> None:
+def _run_local(claims: _Claims, work: str, jobs: int, timeout_s: float, on_done: Callable,
+               threads: int = 1) -> None:
     ctx = _mp_context()
     active: dict = {}  # conn -> (proc, spec, deadline)
     while True:
         while len(active) < jobs and (item := claims.next()) is not None:
             spec, gt_path = item
             parent_conn, child_conn = ctx.Pipe(duplex=False)
-            proc = ctx.Process(target=_child, args=(spec, str(gt_path), str(work), child_conn), daemon=True)
+            proc = ctx.Process(target=_child, args=(spec, str(gt_path), str(work), child_conn, threads),
+                               daemon=True)
             proc.start()
             child_conn.close()
             active[parent_conn] = (proc, spec, time.monotonic() + timeout_s)
@@ -737,9 +771,12 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
 
         claims = _Claims(store, lease, pending, gts, stale_s=runner.lease_s, retry_attempts=retry_attempts,
                          input_errors=input_errors, on_start=on_start, on_done=on_done, on_elsewhere=on_elsewhere)
-        execute = _run_ray if runner.executor == "ray" else _run_local
         try:
-            execute(claims, str(work), runner.jobs, float(sweep.timeout_s), on_done)
+            if runner.executor == "ray":
+                _run_ray(claims, str(work), runner.jobs, float(sweep.timeout_s), on_done)
+            else:
+                log.info("%d concurrent run(s), %d thread(s) each", runner.jobs, runner.threads_per_run)
+                _run_local(claims, str(work), runner.jobs, float(sweep.timeout_s), on_done, runner.threads_per_run)
         finally:
             bar.close()
             try:

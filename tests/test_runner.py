@@ -66,7 +66,10 @@ class FakeHull(Method):
             raise RuntimeError("fake failure: boom")
         with sw.stage("hull"):
             mesh = trimesh.convex.convex_hull(np.asarray(inputs.points, np.float64))
-        return mesh, {"steps": 1, "resumed": resumed}
+        import torch
+
+        return mesh, {"steps": 1, "resumed": resumed, "threads": torch.get_num_threads(),
+                      "omp_env": os.environ.get("OMP_NUM_THREADS")}
 '''
 
 
@@ -266,6 +269,23 @@ def test_sweep_stores_done_rows_then_skips_them(fake, tmp_path):
     # A second run recomputes nothing.
     s = run_sweep(sweep, runner)
     assert (s.done, s.skipped) == (0, 2) and counter.read_text().split() == ["0", "1"]
+
+
+@pytest.mark.parametrize("jobs, threads", [(2, None), (1, 1), (2, 3)])
+def test_each_run_gets_its_share_of_the_cores(fake, tmp_path, jobs, threads):
+    """Concurrent runs split the cores (or take the threads asked for): torch's pool, which the DMesh kernels
+    follow, and the OpenMP variable of libraries started later, are set in each worker."""
+    from eval.runner import RunnerConfig, available_cores, run_sweep
+
+    runner = RunnerConfig(work=str(tmp_path / "work"), jobs=jobs, threads=threads)
+    want = threads if threads is not None else max(1, available_cores() // jobs)
+    assert runner.threads_per_run == want
+    run_sweep(small_sweep(seeds=(0, 1)), runner)
+    with Store(runner.db_path) as store:
+        infos = [r["info_json"] for r in store.rows()]
+    assert [(i["threads"], i["omp_env"]) for i in infos] == [(want, str(want))] * 2
+    with pytest.raises(ValueError, match="threads"):
+        RunnerConfig(work=str(tmp_path), threads=0)
 
 
 def test_failing_run_is_recorded_and_the_sweep_goes_on(fake, tmp_path):

@@ -97,6 +97,23 @@ def test_output_order_does_not_depend_on_the_insertion(rng, kind):
         np.testing.assert_array_equal(par.neighbors, seq.neighbors)
 
 
+def test_automatic_mode_inserts_sequentially_on_a_one_thread_budget(rng):
+    """torch.get_num_threads() is the thread budget of the kernels (a sweep's runner sets it per run): at 1,
+    the automatic mode does not start TBB's threads, and the tets are the same."""
+    import torch
+
+    p = rng.random((30000, 3))  # above native.PARALLEL_THRESHOLD
+    w = spacing_weights(rng, len(p))
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = wdt.triangulate(p, w)
+    finally:
+        torch.set_num_threads(before)
+    assert not one.parallel
+    np.testing.assert_array_equal(one.tets, wdt.triangulate(p, w, parallel=True).tets)
+
+
 def test_grid_gives_six_tets_per_cube_and_no_flat_ones():
     g = np.linspace(0.0, 1.0, 20)
     p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)

@@ -233,7 +233,8 @@ class ExpectedChamfer:
         k_first: neighbours every target row takes first; only the rows that keep more than `mass_tol` of
             probability beyond them take the full K (0, or at least K: every row takes K, as upstream). Not
             with the normal term (its rows are re-sorted, so they take K).
-        workers: threads of the k-d tree queries and of the native kernel.
+        workers: threads of the k-d tree queries and of the native kernel, at most
+            `torch.get_num_threads()` (the process's thread budget, which a sweep's runner sets per run).
         impl: "native" (kNN search and kernel in C++) or "reference" (torch and cKDTree); module docstring.
     Attributes:
         k: the current K of the target -> ours term.
@@ -316,9 +317,9 @@ class ExpectedChamfer:
 
         kk = min(self.k_normal, len(self.target)) if use_normals or tw < 1.0 else 1
         if self.impl == "native":  # the cKDTree is slow for samples far from the target
-            j = native.knn_search_trees(self._tree, sample_tree, kk, self.workers)
+            j = native.knn_search_trees(self._tree, sample_tree, kk, self._workers)
         else:
-            j = self._tree.query(sp, kk, workers=self.workers)[1]
+            j = self._tree.query(sp, kk, workers=self._workers)[1]
         j = torch.from_numpy(np.asarray(j, dtype=np.int64).reshape(s, kk))
         cd_ours = sample_term(samples.points, samples.prob, self._target_t, j, samples.normals, self._normals_t,
                               self.lambda_normal if use_normals else 0.0, tw).mean()
@@ -329,13 +330,17 @@ class ExpectedChamfer:
         return cd_gt + cd_ours, {"cd_gt": float(cd_gt.detach()), "cd_ours": float(cd_ours.detach()), "k": k,
                                  "residual": max_residual, "empty": False}
 
+    @property
+    def _workers(self) -> int:
+        return max(1, min(int(self.workers), torch.get_num_threads()))
+
     def _native_rows(self, samples: SurfaceSamples, sample_tree, k: int, k1: int,
                      use_normals: bool) -> tuple[torch.Tensor, torch.Tensor]:
         """(expected, residual) of the target rows, native kNN search and kernel: every row at its k1 nearest
         samples, the rows that keep more than mass_tol beyond them at k, in one autograd node (rows of two
         lengths, the shorter ones ending at -1)."""
         normals = self._normals_t if self.tangent_weight < 1.0 else None
-        knn = native.knn_search_trees(sample_tree, self._tree, k1, self.workers)
+        knn = native.knn_search_trees(sample_tree, self._tree, k1, self._workers)
         if use_normals:
             return target_term(self._target_t, samples.points, samples.prob, samples.face,
                                torch.from_numpy(knn.astype(np.int64)), self._normals_t, samples.normals,
@@ -344,7 +349,7 @@ class ExpectedChamfer:
         def forward(rows, ids):
             return native.expected_chamfer_forward(self._target if rows is None else self._target[rows],
                                                    samples.points.detach(), samples.prob.detach(), samples.face,
-                                                   ids, self.workers, np.float64,
+                                                   ids, self._workers, np.float64,
                                                    None if normals is None else
                                                    (normals if rows is None else normals[rows]),
                                                    self.tangent_weight)
@@ -355,14 +360,14 @@ class ExpectedChamfer:
             hard = np.flatnonzero(residual > self.mass_tol)
             if len(hard):
                 hard_ids = native.knn_search_trees(sample_tree, native.point_tree(self._target[hard], _TARGET_LEAF),
-                                                   k, self.workers)
+                                                   k, self._workers)
                 rows = np.full((len(knn), k), -1, dtype=np.int32)
                 rows[:, :k1] = knn
                 rows[hard] = hard_ids
                 knn = rows
                 expected[hard], residual[hard] = forward(hard, hard_ids)
         return expected_distance(self._target_t, samples.points, samples.prob, samples.face, knn,
-                                 num_threads=self.workers, target_normals=normals,
+                                 num_threads=self._workers, target_normals=normals,
                                  tangent_weight=self.tangent_weight, known=known)
 
     def _reference_rows(self, samples: SurfaceSamples, sp: np.ndarray, k: int, k1: int,
@@ -374,7 +379,7 @@ class ExpectedChamfer:
 
         def rows_term(rows, kk):
             target = self._target if rows is None else self._target[rows]
-            _, idx = tree.query(target, kk, workers=self.workers)
+            _, idx = tree.query(target, kk, workers=self._workers)
             idx = torch.from_numpy(np.asarray(idx, dtype=np.int64).reshape(len(target), kk))
             normals = self._normals_t if rows is None or self._normals_t is None else self._normals_t[rows]
             return target_term(torch.from_numpy(target), samples.points, samples.prob, samples.face, idx,

@@ -137,7 +137,7 @@ class PointCloudConfig(Presets):
     extraction: str = "sheet"       # which real faces make the mesh: "all", "no_interior", "sheet" (dmesh.extract)
     orient: bool = True             # output the faces' oriented, closed surface (dmesh.extract.surface)
     save_every: int = 50            # steps between resumable state saves (with a state path)
-    workers: int = 2                # threads of the k-d tree queries
+    workers: int = 2                # threads of the k-d tree queries (at most torch.get_num_threads())
     kernels: str = "native"         # "native" (C++ expected Chamfer and Delta) or "reference" (torch, for checks)
     seed: int = 0                   # seed of every random choice
 

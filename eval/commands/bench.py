@@ -27,6 +27,8 @@ def add_sweep_arguments(p: argparse.ArgumentParser, work_default: str) -> None:
     p.add_argument("--db", help="SQLite results store (default: WORK/results.sqlite)")
     p.add_argument("--jobs", type=int, default=1,
                    help="concurrent runs: worker processes, or Ray tasks in flight (default: 1)")
+    p.add_argument("--threads", type=int, metavar="N",
+                   help="local executor: threads per run (default: the machine's cores / --jobs)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool (default) or Ray tasks (needs pip install -e .[ray])")
     p.add_argument("--ray-address", metavar="HOST:PORT",
@@ -142,7 +144,7 @@ def run(args) -> int:
 
     sweep = build_sweep(args)
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
-                          retry_failed=args.retry_failed, ray_address=args.ray_address)
+                          retry_failed=args.retry_failed, ray_address=args.ray_address, threads=args.threads)
     check_work(args.work, runner.db_path)
     if args.plan:
         return print_plans([sweep], runner)
