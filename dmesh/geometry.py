@@ -12,6 +12,17 @@ import torch
 from dmesh.tolerances import GEOMETRY_EPS
 
 
+def gather(values: torch.Tensor, index) -> torch.Tensor:
+    """values[index] along the first axis (index: an integer tensor or array of any shape), through
+    `index_select`: on a CPU tensor its backward (`index_add_`) adds in a fixed order and is the fastest of
+    the gathers, where `values[index]`'s (`index_put_` with accumulate) adds in thread-schedule order, or, under
+    torch's deterministic algorithms (`dmesh.recon.loop.deterministic`), sorts first."""
+    index = torch.as_tensor(index)
+    if index.dtype not in (torch.int64, torch.int32):
+        index = index.long()
+    return values.index_select(0, index.reshape(-1)).reshape(*index.shape, *values.shape[1:])
+
+
 def _safe(x: torch.Tensor, eps: float = GEOMETRY_EPS) -> torch.Tensor:
     """x with |x| >= eps, keeping its sign (0 maps to +eps)."""
     return torch.where(x.abs() < eps, torch.full_like(x, eps) * torch.where(x < 0, -1.0, 1.0), x)

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
-from dmesh import native
+from dmesh import geometry, native
 from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
 from dmesh.checks import require_positive
 # The per-vertex distances live in dmesh.deltas; their names stay importable from here.
@@ -340,7 +340,7 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
             if reals is None:
                 p_real = torch.ones_like(p_wdt)
             else:
-                p_real = dmin(reals[faces].double(), cfg.alpha_real)
+                p_real = dmin(geometry.gather(reals, faces).double(), cfg.alpha_real)
             out = FaceProbabilities(faces, in_wdt, delta.to(dtype), p_wdt.to(dtype), p_real.to(dtype),
                                     (p_wdt * p_real).to(dtype), pd, diagram)
     return out

@@ -162,3 +162,36 @@ def test_stop_ends_the_phase_before_the_update():
     # The stopping step is recorded but not applied: the state is the one its figures describe.
     assert float(x[0, 0].detach()) == loop.history[-1]["x"] and after == [r["step"] for r in loop.history[:-1]]
     assert not Loop().run_phase(pull, opt, 2, 0)  # without `stop`, every step runs
+
+
+def test_deterministic_turns_torchs_deterministic_algorithms_on_for_the_call_only():
+    """The reconstructions run under `deterministic` (backward of CPU gathers in a fixed order); the caller's
+    setting comes back afterwards, also after an exception."""
+    from dmesh.recon.loop import deterministic
+    from dmesh.recon.mesh_to_dmesh import mesh_to_dmesh
+    from dmesh.recon.multiview import reconstruct as mv_reconstruct
+    from dmesh.recon.pointcloud import PointCloudConfig
+    from dmesh.recon.pointcloud import reconstruct as pc_reconstruct
+
+    seen = []
+
+    @deterministic
+    def probe(fail=False):
+        seen.append(torch.are_deterministic_algorithms_enabled())
+        if fail:
+            raise RuntimeError("boom")
+
+    assert not torch.are_deterministic_algorithms_enabled()
+    probe()
+    with pytest.raises(RuntimeError):
+        probe(fail=True)
+    assert seen == [True, True] and not torch.are_deterministic_algorithms_enabled()
+    for fn in (pc_reconstruct, mv_reconstruct, mesh_to_dmesh):  # each is `deterministic`'s wrapper
+        assert fn.__code__ is probe.__code__, fn.__name__
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(3000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    during = []
+    pc_reconstruct(pts, None, PointCloudConfig.tiny(num_init=200, steps_phase1=1, steps_phase2=1),
+                   callback=lambda rec: during.append(torch.are_deterministic_algorithms_enabled()))
+    assert during and all(during) and not torch.are_deterministic_algorithms_enabled()

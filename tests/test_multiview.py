@@ -68,8 +68,9 @@ TINY_LIMIT = 0.149
 
 @pytest.fixture
 def one_thread():
-    """Runs are bit-for-bit repeatable only on one thread: the renderers are deterministic on any thread
-    count, but torch's parallel scatter-adds (candidate scores, regularisers) sum in schedule order."""
+    """One thread for the tests' exact comparisons: runs repeat bit for bit at a given thread count (the
+    renderers reduce in a fixed order; torch's gathers run deterministic under `loop.deterministic`), but
+    torch's reductions split their sums by the thread count, so the last bits depend on it."""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     yield

@@ -56,7 +56,7 @@ def real_regularizer(reals: torch.Tensor, faces: torch.Tensor, face_weights: tor
     # One column per vertex: torch's reductions along a length-3 axis are several times slower than the
     # column arithmetic (there are ~10^5-10^6 scored faces every step).
     rv = reals.double()
-    r0, r1, r2 = rv[faces[:, 0]], rv[faces[:, 1]], rv[faces[:, 2]]
+    r0, r1, r2 = (geometry.gather(rv, faces[:, k]) for k in range(3))
     w = face_weights.detach().double()
     total = w.sum().clamp_min(DIVISION_FLOOR)
     out = torch.zeros((), dtype=torch.float64)
@@ -73,7 +73,7 @@ def real_regularizer(reals: torch.Tensor, faces: torch.Tensor, face_weights: tor
 def aspect_ratios(points: torch.Tensor, faces: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(M,) aspect ratio max edge / (min height * 2/sqrt(3)) (unclamped) and (M,) max edge length (float64)."""
     p = points.double()
-    a, b, c = p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]
+    a, b, c = (geometry.gather(p, faces[:, k]) for k in range(3))
     edges = torch.stack([(b - a).norm(dim=1), (c - b).norm(dim=1), (a - c).norm(dim=1)], dim=1)
     longest = edges.max(1).values
     area2 = torch.linalg.cross(b - a, c - a).norm(dim=1)           # twice the area

@@ -28,6 +28,7 @@ procedure starts a stage (`Loop.stage`); the CLI progress bars show it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import logging
 import os
@@ -67,6 +68,33 @@ class ReconstructionResult:
     timings: dict = field(default_factory=dict)
     history: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
+
+
+def deterministic(fn: Callable) -> Callable:
+    """Runs `fn` with torch's deterministic algorithms on (restoring the caller's setting after), so the same
+    seed gives the same mesh on any number of threads. Without them, the backward of an index gather on a
+    CPU tensor (`x[idx]`, which the regularisers and the probability terms use on 10^5-10^6 faces) adds
+    into its result in the order the threads happen to run, so two runs differ in the last bits, and a
+    threshold decision later may differ too."""
+
+    import torch.utils.deterministic as torch_deterministic
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        before, warn_only = torch.are_deterministic_algorithms_enabled(), \
+            torch.is_deterministic_algorithms_warn_only_enabled()
+        fill = torch_deterministic.fill_uninitialized_memory
+        torch.use_deterministic_algorithms(True)
+        # Without the NaN-filling of every new empty tensor that the mode also turns on: it costs time on
+        # every allocation and only shows reads of uninitialised memory, which no kernel here makes.
+        torch_deterministic.fill_uninitialized_memory = False
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            torch.use_deterministic_algorithms(before, warn_only=warn_only)
+            torch_deterministic.fill_uninitialized_memory = fill
+
+    return wrapper
 
 
 def fingerprint(data: np.ndarray, config) -> str:
@@ -251,5 +279,5 @@ class Loop:
         return self.timings
 
 
-__all__ = ["TRAIN_ALL", "Clock", "Loop", "ReconstructionResult", "fingerprint", "freeze_faces", "load_state",
-           "mesh_mask", "save_state", "timed_probabilities"]
+__all__ = ["TRAIN_ALL", "Clock", "Loop", "ReconstructionResult", "deterministic", "fingerprint", "freeze_faces",
+           "load_state", "mesh_mask", "save_state", "timed_probabilities"]

@@ -36,7 +36,7 @@ import torch
 from dmesh.candidates import CandidateFaces, NeighbourCache, knn_triples
 from dmesh.checks import require_positive
 from dmesh.deltas import existing_deltas, nonexisting_deltas
-from dmesh.recon.loop import Loop, ReconstructionResult
+from dmesh.recon.loop import Loop, ReconstructionResult, deterministic
 from dmesh.recon.optim import BoundedAdam, StepConfig
 from dmesh.tolerances import COINCIDENT, FLOAT64_FLOOR
 from dmesh.wdt import PowerDiagram, face_keys, triangulate
@@ -359,6 +359,7 @@ def _orient(points: np.ndarray, weights: np.ndarray, faces: np.ndarray, gt_verti
     return wound[repair.keep_flattest(points, wound)]
 
 
+@deterministic
 def mesh_to_dmesh(vertices, faces, config: MeshToDMeshConfig | None = None,
                   callback: Callable[[dict], None] | None = None) -> MeshToDMeshResult:
     """Optimises a DMesh whose WDT faces on the given vertices reproduce the given faces.

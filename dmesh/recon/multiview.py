@@ -70,13 +70,15 @@ import torch
 
 from dmesh.extract import (SurfaceConfig, depth_consistent_faces, extract_filtered, filtered_faces, surface_of_mesh,
                            to_trimesh, towards_cameras)
+from dmesh.geometry import gather
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.model import DMesh
 from dmesh.probability import dmin
 from dmesh.recon.multiview_config import MULTIVIEW_PRESETS as PRESETS, MultiViewConfig
 from dmesh.recon.depth_fit import DepthFitConfig, fit_to_depth
 from dmesh.recon.init import DEPTH_NOISY_RATIO, noise_ratio, seeds_and_voronoi
-from dmesh.recon.loop import TRAIN_ALL, Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask
+from dmesh.recon.loop import (TRAIN_ALL, Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces,
+                              mesh_mask)
 from dmesh.recon.optim import BoundedAdam
 from dmesh.recon.views import (BOX_MARGIN, Views, check_views, depth_channel, image_targets, lifted_points,
                                normalisation)
@@ -316,7 +318,7 @@ class _Run:
             freeze_faces(self.opt, pd.faces[self.current_mesh()])
         ids = self.pick_views()
         with self.clock("phase2_render"):
-            opacity = dmin(dm.reals[faces].double(), cfg.alpha_real).float()
+            opacity = dmin(gather(dm.reals, faces).double(), cfg.alpha_real).float()
             out = tet_render_views(verts, pd.tets, pd.faces, pd.face_tets, opacity, [self.cameras[i] for i in ids])
             loss_img = self.image_loss(out, torch.from_numpy(ids))
         with self.clock("phase2_regularizers"):
@@ -418,6 +420,7 @@ class _Run:
         return MultiViewResult(mesh, self.dm, self.center, self.scale, self.loop.finish(), self.loop.history, info)
 
 
+@deterministic
 def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable[[dict], None] | None = None,
                 state_path: str | os.PathLike | None = None) -> MultiViewResult:
     """Reconstructs a mesh from multi-view diffuse and depth images with DMesh.
@@ -436,8 +439,8 @@ def reconstruct(views, config: MultiViewConfig | None = None, callback: Callable
         ValueError: bad views (none, mismatched shapes, NaN, empty masks, cameras too close) or config.
 
     Every random choice (views per step, surface samples, seeds) comes from `config.seed`. Runs repeat bit
-    for bit on any thread count: the triangulation's order is canonical and the native kernels (renderers,
-    Delta) reduce in a fixed order.
+    for bit at a given thread count: the triangulation's order is canonical, the native kernels (renderers,
+    Delta) reduce in a fixed order and torch runs its deterministic algorithms (`loop.deterministic`).
     """
     cfg = config or MultiViewConfig.paper()
     if not isinstance(cfg, MultiViewConfig):

@@ -47,13 +47,14 @@ import numpy as np
 import torch
 
 from dmesh.extract import SurfaceConfig, extract, orient_faces  # extract, orient_faces: re-exported
+from dmesh.geometry import gather
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
 from dmesh.recon.config import POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
 from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_and_voronoi, smooth_points,
                               statistical_inliers)
-from dmesh.recon.loop import (Loop, ReconstructionResult, fingerprint, freeze_faces, mesh_mask,
+from dmesh.recon.loop import (Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
 from dmesh.tolerances import DIVISION_FLOOR
@@ -238,7 +239,7 @@ class _Run:
         if step in cfg.freeze_phase2:
             freeze_faces(self.opt, pd.faces[mesh_mask(dm.reals, pd.faces, cfg.threshold)])
         with clock("phase2_sampling"):
-            prob = dmin(dm.reals[faces].double(), cfg.alpha_real)
+            prob = dmin(gather(dm.reals, faces).double(), cfg.alpha_real)
             samples = sample_faces(dm.points, faces, ones, dm.reals, prob, cfg.num_samples, self.rng,
                                    cfg.prob_threshold, with_normals=self.with_normals)
         with clock("phase2_chamfer"):
@@ -280,6 +281,7 @@ class _Run:
         return PointCloudResult(mesh, self.dm, self.center, self.scale, self.loop.finish(), self.loop.history, info)
 
 
+@deterministic
 def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
                 callback: Callable[[dict], None] | None = None,
                 state_path: str | os.PathLike | None = None, probe=None) -> PointCloudResult:
