@@ -73,9 +73,8 @@ class ReconstructionResult:
 def deterministic(fn: Callable) -> Callable:
     """Runs `fn` with torch's deterministic algorithms on (restoring the caller's setting after), so the same
     seed gives the same mesh on any number of threads. Without them, the backward of an index gather on a
-    CPU tensor (`x[idx]`, which the regularisers and the probability terms use on 10^5-10^6 faces) adds
-    into its result in the order the threads happen to run, so two runs differ in the last bits, and a
-    threshold decision later may differ too."""
+    CPU tensor (`x[idx]`) adds into its result in the order the threads happen to run, so two runs differ in
+    the last bits, and a threshold decision later may differ too."""
 
     import torch.utils.deterministic as torch_deterministic
 
