@@ -16,7 +16,8 @@ Nothing assumes a disk shared between the driver (the process running the sweep)
 - the driver writes each mesh file (atomically) and its store row as the result arrives, so a worker or a
   node that dies loses only the run it was computing, which Ray resubmits (`TASK_RETRIES` times).
 
-At most `jobs` tasks are in flight (each asks for one CPU), so `--jobs` bounds the load a sweep puts on a
+At most `jobs` tasks are in flight (each asks for `TASK_CPUS` CPUs and runs on that many threads,
+`eval.runner.limit_threads`), so `--jobs` bounds the load a sweep puts on a
 cluster. A run's timeout counts from its submission (keep `--jobs` at or under the free CPUs, or queueing
 counts too) and over Ray's resubmissions; a run past it is cancelled (its worker is killed) and stored as
 failed. A method's own exceptions are outcomes (stored failed, then retried only by `--retry-failed`); only
@@ -35,7 +36,7 @@ from pathlib import Path
 from typing import Callable
 
 from eval.io import atomic_path
-from eval.runner import execute_run, input_path, mesh_path_for, one_line
+from eval.runner import execute_run, input_path, limit_threads, mesh_path_for, one_line
 from eval.store import pid_alive
 from eval.sweep import RunSpec, get_method
 
@@ -45,6 +46,10 @@ log = logging.getLogger(__name__)
 CONNECT_TIMEOUT_S = 10.0
 #: Times Ray resubmits a task whose worker process or node died.
 TASK_RETRIES = 3
+#: CPUs a task asks Ray for, and the threads its run computes on (a worker process is reused for many tasks
+#: and a node may have more cores than it offers, so the cap is set per task rather than left to Ray's
+#: environment defaults).
+TASK_CPUS = 1
 #: Name prefix of the tasks' scratch folders (in each node's temporary folder).
 _SCRATCH_PREFIX = "dmesh-run-"
 #: Ray settings for joining a cluster, unless set in the environment: an address where something other than
@@ -186,6 +191,7 @@ def _task(spec: RunSpec, gt_rel: str, gt_files: dict, input_files: dict, method)
     """
     scratch = _scratch()
     try:
+        limit_threads(TASK_CPUS)
         for rel, data in {**gt_files, **input_files}.items():
             target = scratch / rel
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -222,7 +228,7 @@ def run_ray(claims, work: str, jobs: int, timeout_s: float, on_done: Callable) -
     if not ray.is_initialized():
         connect(None, jobs)
     # The function is sent by reference (module and name): every node needs this project installed.
-    remote = ray.remote(num_cpus=1, max_retries=TASK_RETRIES, retry_exceptions=False)(_task)
+    remote = ray.remote(num_cpus=TASK_CPUS, max_retries=TASK_RETRIES, retry_exceptions=False)(_task)
     payloads = _Payloads(ray, work)
     active: dict = {}  # ObjectRef -> (spec, deadline)
     while True:

@@ -116,6 +116,13 @@ def available_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _threads() -> int:
+    """Threads of torch's intra-op pool in this process (the pool the DMesh kernels follow)."""
+    import torch
+
+    return int(torch.get_num_threads())
+
+
 def limit_threads(n: int) -> None:
     """Caps this process's compute threads at `n`: torch's intra-op pool (which the DMesh kernels and
     renderers follow, `dmesh.render`, `dmesh.wdt`, `dmesh.losses.chamfer`), and the OpenMP, BLAS and
@@ -417,8 +424,9 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         timings = {k: float(v) for k, v in dict(result.timings).items()}
         if "total" not in timings:
             raise ValueError("the method's timings lack 'total'")
+        info = {**_jsonable(dict(result.info or {})), "worker_threads": _threads()}  # the timings' budget
         return {"status": "done", "metrics": dict(metrics), "timings": timings,
-                "info": _jsonable(dict(result.info or {})), "peak_memory_mb": float(result.peak_memory_mb),
+                "info": info, "peak_memory_mb": float(result.peak_memory_mb),
                 "mesh_path": str(out)}
     except Exception as exc:  # noqa: BLE001 - every failure of a run is a result (stored as failed)
         log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())

@@ -29,7 +29,8 @@ Columns (all JSON columns hold UTF-8 JSON text):
     error          TEXT  one-line error message of a failed run
     metrics_json   TEXT  flat dict from `eval.metrics.compute_metrics` (raw units, normalised GT frame)
     timings_json   TEXT  method timings in seconds, including "total"
-    info_json      TEXT  the method's extra information (e.g. optimisation steps)
+    info_json      TEXT  the method's extra information (e.g. optimisation steps) and `worker_threads`, the
+                         threads its worker allowed (`eval.runner.limit_threads`)
     peak_memory_mb REAL  peak memory of the method
     mesh_path      TEXT  output mesh, relative to the store's folder when inside it
     gt_hash        TEXT  hash of the GT mesh (file bytes or generated arrays)

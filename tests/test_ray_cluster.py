@@ -151,6 +151,7 @@ def test_sweep_on_a_cluster_with_a_killed_worker_matches_a_local_sweep(cluster, 
     assert sorted(got) == sorted(want) and len(got) == 4
     for key, row in got.items():
         assert {c: row[c] for c in COMPARED} == {c: want[key][c] for c in COMPARED}, key
+        assert row["info_json"]["worker_threads"] == 1, key  # a task computes on the one CPU it asked for
         # The driver wrote the mesh that came back from the task: byte for byte the local run's mesh.
         mine = resolve_mesh_path(row, remote / "results.sqlite")
         theirs = resolve_mesh_path(want[key], local / "results.sqlite")

@@ -283,7 +283,7 @@ def test_each_run_gets_its_share_of_the_cores(fake, tmp_path, jobs, threads):
     run_sweep(small_sweep(seeds=(0, 1)), runner)
     with Store(runner.db_path) as store:
         infos = [r["info_json"] for r in store.rows()]
-    assert [(i["threads"], i["omp_env"]) for i in infos] == [(want, str(want))] * 2
+    assert [(i["threads"], i["omp_env"], i["worker_threads"]) for i in infos] == [(want, str(want), want)] * 2
     with pytest.raises(ValueError, match="threads"):
         RunnerConfig(work=str(tmp_path), threads=0)
 
