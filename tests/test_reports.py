@@ -253,6 +253,8 @@ def test_reports_take_the_latest_finished_run_over_a_rerun_left_running(tmp_path
     only_running = df[df["key"] == "left"]
     assert select_runs(only_running)["key"].tolist() == ["left"]
     assert tables.table2(only_running, "pointcloud") == []   # no class row of n = 0 for a run still going
+    # In the list of runs it shows as unfinished: the report outlives the process that was running it.
+    assert [r["status"] for r in tables.per_shape(only_running, "pointcloud")] == ["unfinished"]
 
 
 def test_text_fields_show_empty_for_missing_values():
@@ -269,7 +271,7 @@ def test_recipe_rows_name_preset_kind_and_overrides():
         {"method": "dmesh", "config_label": "lr=1e-05,preset=paper", "input_kind": "pointcloud"},
         {"method": "psr", "config_label": "", "input_kind": "pointcloud"},
         {"method": "dmesh_mv", "config_label": "preset=depth", "input_kind": "multiview"},
-    ])
+    ]).assign(status="done")
     rows = {r["method"]: r for r in recipe_rows(df, "pointcloud")}
     assert set(rows) == {"dmesh", "dmesh [preset=paper]", "dmesh [lr=1e-05,preset=paper]"}
     assert rows["dmesh"]["preset"] == "fast" and rows["dmesh"]["kind"] == "initialisation"
@@ -361,15 +363,20 @@ def test_multiview_settings_study_leaves_table2_for_its_own_report(tmp_path):
 
 
 def test_recipe_rows_say_when_runs_are_older_than_the_recipe():
-    """The recipe text is the current code's: rows whose code version is not the method's current one are
-    counted beside it."""
+    """The recipe text is the current code's: finished rows whose code version is not the method's current one
+    are counted beside it."""
     from eval.sweep import code_version, get_method
 
     now = code_version(get_method("dmesh"))
     df = pd.DataFrame([
-        {"method": "dmesh", "config_label": "", "input_kind": "pointcloud", "code_version": now},
-        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": now},
-        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": "0.1+src.old"},
+        {"method": "dmesh", "config_label": "", "input_kind": "pointcloud", "code_version": now, "status": "done"},
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": now,
+         "status": "done"},
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": "0.1+src.old",
+         "status": "failed"},
+        # left running by an interrupted sweep: neither in the tables nor in the count
+        {"method": "dmesh", "config_label": "preset=paper", "input_kind": "pointcloud", "code_version": "0.1+src.old",
+         "status": "running"},
     ])
     rows = {r["method"]: r for r in recipe_rows(df, "pointcloud")}
     assert "earlier code" not in rows["dmesh"]["recipe"]

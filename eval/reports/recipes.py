@@ -37,10 +37,11 @@ def recipe_rows(df, input_kind: str) -> list[dict]:
         steps, text = recipes.get(preset, (None, f"unknown preset {preset!r}"))
         if rest:
             text += f" Overrides: {rest}."
-        older = _older_runs(method, g)
+        finished = g[g["status"].isin(["done", "failed"])]  # a run left running is not in the tables
+        older = _older_runs(method, finished)
         if older:
-            text += (f" ({older} of its {len(g)} runs were made by earlier code of the method, which may predate "
-                     f"part of this recipe.)")
+            text += (f" ({older} of its {len(finished)} runs were made by earlier code of the method, which may "
+                     f"predate part of this recipe.)")
         kind = "gradient steps" if steps else ("initialisation" if steps is not None else "?")
         rows.append({"method": method_label(display_name(method, input_kind), label), "preset": preset,
                      "kind": kind, "recipe": text})

@@ -245,8 +245,8 @@ QUALITY_SUMMARY_COLUMNS = [("normal_consistency_oriented", "oriented NC", 1),
 
 
 def per_shape(df, input_kind: str) -> list[dict]:
-    """One row per run of `input_kind` (method, shape, class, seed, status, cd_p2s, cd_l1, time_s, faces,
-    error, and for done runs the `quality_row` keys)."""
+    """One row per run of `input_kind` (method, shape, class, seed, status (done, failed, or unfinished for a
+    run stored as running), cd_p2s, cd_l1, time_s, faces, error, and for done runs the `quality_row` keys)."""
     if df is None or len(df) == 0:
         return []
     sub = df[df["input_kind"] == input_kind].sort_values(["category", "shape", "method", "config_label", "seed"])
@@ -254,7 +254,9 @@ def per_shape(df, input_kind: str) -> list[dict]:
     for _, r in sub.iterrows():
         out.append({"method": method_label(display_name(r["method"], input_kind), r["config_label"]),
                     "shape": r["shape"],
-                    "category": r["category"], "seed": int(r["seed"]), "status": r["status"],
+                    "category": r["category"], "seed": int(r["seed"]),
+                    # A report is a snapshot: a run stored as running had not finished when it was written.
+                    "status": "unfinished" if r["status"] == "running" else r["status"],
                     "cd_p2s": num(r.get("cd_p2s")), "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")),
                     "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error")),
                     **(quality_row(r) if r["status"] == "done" else {})})
