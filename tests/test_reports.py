@@ -382,3 +382,5 @@ def test_recipe_rows_say_when_runs_are_older_than_the_recipe():
     assert "earlier code" not in rows["dmesh"]["recipe"]
     assert rows["dmesh [preset=paper]"]["recipe"].endswith(
         "(1 of its 2 runs were made by earlier code of the method, which may predate part of this recipe.)")
+    one = recipe_rows(df.iloc[2:], "pointcloud")[0]["recipe"]
+    assert one.endswith("(its one run was made by earlier code of the method, which may predate part of this recipe.)")

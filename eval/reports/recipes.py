@@ -40,8 +40,8 @@ def recipe_rows(df, input_kind: str) -> list[dict]:
         finished = g[g["status"].isin(["done", "failed"])]  # a run left running is not in the tables
         older = _older_runs(method, finished)
         if older:
-            text += (f" ({older} of its {len(finished)} runs were made by earlier code of the method, which may "
-                     f"predate part of this recipe.)")
+            which = "its one run was" if len(finished) == 1 else f"{older} of its {len(finished)} runs were"
+            text += f" ({which} made by earlier code of the method, which may predate part of this recipe.)"
         kind = "gradient steps" if steps else ("initialisation" if steps is not None else "?")
         rows.append({"method": method_label(display_name(method, input_kind), label), "preset": preset,
                      "kind": kind, "recipe": text})
