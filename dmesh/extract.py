@@ -22,7 +22,8 @@ Modes, from upstream's to ours:
 The output surface (`surface`, `extract(..., orient=True)`): the faces alone carry no orientation and, at
 a hole or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets
 are labelled inside or outside by walks to the hull, and the mesh faces between an inside and an outside
-tet form the closed part, wound outward; its small holes are filled over their own vertices and pinches
+tet form the closed part, wound outward (open sheets that fooled the walks are set aside and the walks
+repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their own vertices and pinches
 are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
 do not share an edge with the closed part, wound consistently and facing the input normals when given;
@@ -131,13 +132,16 @@ class SurfaceConfig:
 
     directions: int = 9        # walks per tet in the inside/outside vote (dmesh.solid.walk_votes); odd: no ties
     max_open: float = 0.25     # a region of inside tets whose boundary is more than this fraction non-mesh
-                               # faces (by area) is an open part, not a solid (dmesh.solid.drop_open_regions)
+                               # faces (by area) is an open part, not a solid (dmesh.solid.drop_open_regions);
+                               # a piece of walls whose rim spans more than this of its area is a sheet
+                               # (dmesh.solid.open_sheet_walls)
     min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
     max_hole: int = 64         # holes of the closed part with at most this many edges are filled
     max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped,
                                # and so is a closed piece this small beside a larger one
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
+    revote: bool = True        # vote again with the open sheets set aside (dmesh.solid.open_sheet_walls)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
     turn_faces: bool = True    # a sheet face whose input normals clearly disagree turns on its own (False:
@@ -171,9 +175,9 @@ class Surface:
         vertices: (V,) int64 the point of `pd.points` under each vertex (a point where sheets meet has one
             vertex per sheet: `dmesh.repair.split_fans`).
         closed: number of closed-part rows.
-        info: counts: inside_tets, regions_dropped, tets_flipped, closed_faces, holes_filled, hole_faces,
-            holes_left, fins_dropped, crumbs_dropped, split_vertices, folds_dropped, sheet_faces; vote ("parity" or
-            "winding").
+        info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
+            tets_flipped, closed_faces, holes_filled, hole_faces, holes_left, fins_dropped, crumbs_dropped,
+            split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
     """
 
     faces: np.ndarray
@@ -202,13 +206,23 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     if normals is not None:
         normals = (np.asarray(normals[0], dtype=np.float64), np.asarray(normals[1], dtype=np.float64))
     sign = None if normals is None else solid.wall_signs(pd, walls, *normals, workers=cfg.workers)
-    votes = solid.walk_votes(pd, walls, solid.directions(cfg.directions, cfg.seed), sign)
+    dirs = solid.directions(cfg.directions, cfg.seed)
+    votes = solid.walk_votes(pd, walls, dirs, sign)
     inside, dropped = solid.drop_open_regions(pd, walls, votes > 0.5, cfg.max_open, cfg.min_thickness)
+    aside = solid.open_sheet_walls(pd, walls, inside, cfg.max_open) if cfg.revote else np.zeros(len(walls), bool)
+    if aside.any():  # sheets over a solid fooled the walks: vote again without them
+        solids = walls & ~aside
+        if solids.any():
+            votes = solid.walk_votes(pd, solids, dirs, sign)
+            inside, dropped = solid.drop_open_regions(pd, solids, votes > 0.5, cfg.max_open, cfg.min_thickness)
+        else:  # only sheets: nothing is inside
+            inside = np.zeros_like(inside)
     inside, flipped = solid.repair_pinches(pd, inside, cfg.repair_rounds)
     between = solid.boundary_mask(pd, inside)
     closed = solid.oriented_boundary(pd, inside, np.flatnonzero(walls & between))
     info = {"vote": "parity" if sign is None else "winding", "inside_tets": int(inside.sum()),
-            "regions_dropped": dropped, "tets_flipped": flipped, "closed_faces": int(len(closed))}
+            "regions_dropped": dropped, "sheets_set_aside": int(aside.sum()), "tets_flipped": flipped,
+            "closed_faces": int(len(closed))}
     sheet = pd.faces[walls & ~between].astype(np.int64)
     if cfg.clean:
         fill, filled, left = repair.fill_holes(points, closed, cfg.max_hole) if len(closed) else (closed, 0, 0)

@@ -23,6 +23,15 @@ the winding number, and labelling the tets of a tetrahedralisation by a winding 
 Jacobson et al., "Robust inside-outside segmentation using generalized winding numbers", SIGGRAPH 2013).
 Written from the papers; no code is taken from either.
 
+Open sheets among the walls mislead the vote: a walk that crosses a closed surface and then a sheet over
+it (a mushroom's cap above its stalk) counts two crossings, even, and calls the tet under the sheet outside,
+so the part of a solid that a sheet covers from more than half the directions is lost, and filling the hole
+that leaves puts a lid across the solid. So the vote is taken twice (`open_sheet_walls`): the walls of
+every open piece (walls joined through edges with exactly two walls, whose rim of one-wall edges could
+span a lid of more than `max_open` of its area) that the first labelling left mostly off the inside/outside
+boundary are set aside as sheets, and the walks are repeated over the other walls. A closed surface with
+small holes keeps its say in the second vote.
+
 Then (`drop_open_regions`, `repair_pinches`):
 - regions of inside tets (joined through non-wall faces) whose boundary is mostly not walls are open
   parts seen as volumes (a bowl's cavity closed by a lid of non-wall faces), and regions much thinner than
@@ -177,6 +186,46 @@ def drop_open_regions(pd, walls: np.ndarray, inside: np.ndarray, max_open: float
     return inside & ~drop[region], int(dropped.sum())
 
 
+def open_sheet_walls(pd, walls: np.ndarray, inside: np.ndarray, max_open: float,
+                     min_boundary: float = 0.5) -> np.ndarray:
+    """(F,) bool: the walls of the open pieces that `inside` leaves mostly off its boundary (module docstring).
+
+    A piece is a set of walls joined through edges that exactly two walls share; its rim is its edges with
+    a single wall (an edge with three or more walls, where pieces meet, is not rim). A piece is open when
+    the disk its rim could span, L^2 / 4 pi for rim length L (an upper bound on the area of its holes), is
+    more than `max_open` of its area: a sheet's rim spans a lid of about its own size, the few small holes
+    of a closed surface span almost nothing. An open piece with less than `min_boundary` of its area
+    between an inside and an outside tet is a sheet the labelling did not treat as part of a solid.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from dmesh.repair import edge_table
+
+    out = np.zeros(len(walls), bool)
+    ids = np.flatnonzero(walls)
+    if len(ids) == 0:
+        return out
+    f = pd.faces[ids].astype(np.int64)
+    F = len(f)
+    _, edge_of, counts = edge_table(f)
+    order = np.argsort(edge_of, kind="stable")
+    pairs = order[(counts[edge_of] == 2)[order]].reshape(-1, 2) % F  # the two walls of each two-wall edge
+    n, piece = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(F, F)),
+                                    directed=False)
+    p = pd.points
+    half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])  # edge_table's half-edge order
+    rim = (counts[edge_of] == 1) * np.linalg.norm(p[half[:, 1]] - p[half[:, 0]], axis=1)
+    rim_length = np.bincount(piece[np.arange(3 * F) % F], rim, n)
+    area = face_areas(p, f)
+    piece_area = np.bincount(piece, area, n)
+    is_open = rim_length ** 2 / (4.0 * np.pi) > max_open * piece_area
+    on_boundary = np.bincount(piece, area * boundary_mask(pd, inside)[ids], n)
+    sheet = is_open & (on_boundary < min_boundary * piece_area)
+    out[ids[sheet[piece]]] = True
+    return out
+
+
 def _groups(pd, tets: np.ndarray, inside: np.ndarray, shared: tuple) -> list[np.ndarray]:
     """Same-label groups among `tets` (the star of a vertex or the ring of an edge), joined through the
     faces that contain all of `shared`; all hull-side gaps count as one outside tet (id -1)."""
@@ -290,5 +339,5 @@ def wall_signs(pd, walls: np.ndarray, points: np.ndarray, normals: np.ndarray, k
     return out
 
 
-__all__ = ["directions", "walk_votes", "drop_open_regions", "repair_pinches", "boundary_mask",
+__all__ = ["directions", "walk_votes", "drop_open_regions", "open_sheet_walls", "repair_pinches", "boundary_mask",
            "oriented_boundary", "wall_signs", "tet_volumes", "face_areas"]

@@ -130,6 +130,33 @@ def test_surface_closes_a_holed_boundary_and_drops_a_fin():
     assert {cycle(f) for f in out.faces.tolist()} == {cycle(f) for f in truth.tolist()}
 
 
+@pytest.mark.parametrize("holed", [False, True], ids=["closed", "holed"])
+def test_a_sheet_over_a_solid_does_not_hollow_it(holed):
+    """A ball under a wide cap (a mushroom's stalk under its cap): walks from the ball that pass through the
+    cap cross two walls, so the first vote calls the whole ball outside; with the cap set aside the second
+    vote recovers it exactly (and, with a one-triangle hole in the ball, fills that hole)."""
+    pd = cloud_diagram(n=4000, seed=5)
+    centroid = pd.points[pd.tets.astype(np.int64)].mean(1)
+    ball = solid.repair_pinches(pd, np.linalg.norm(centroid - [0.0, -0.2, 0.0], axis=1) < 0.35)[0]
+    big = solid.repair_pinches(pd, np.linalg.norm(centroid, axis=1) < 0.85)[0]
+    cap = solid.boundary_mask(pd, big) & (pd.points[pd.faces.astype(np.int64)].mean(1)[:, 1] > 0.0)
+    truth = solid.boundary_mask(pd, ball)
+    walls = truth | cap
+    if holed:
+        walls[np.flatnonzero(truth)[0]] = False
+    config = SurfaceConfig()
+    first = surface(pd, walls, config=SurfaceConfig(revote=False))
+    assert first.info["inside_tets"] == 0  # the failure the second vote is for
+    out = surface(pd, walls, config=config)
+    assert out.info["sheets_set_aside"] == cap.sum() and out.info["inside_tets"] == ball.sum()
+    assert out.info["holes_filled"] == int(holed)
+    closed = out.faces[:out.closed]
+    check_closed(closed, pd.points[out.vertices])
+    expected = solid.oriented_boundary(pd, ball, np.flatnonzero(truth))
+    assert {cycle(out.vertices[f]) for f in closed.tolist()} == {cycle(f) for f in expected.tolist()}
+    assert len(out.faces) - out.closed == cap.sum()  # the cap stays, as a sheet
+
+
 def test_surface_of_a_renumbered_mesh_and_a_foreign_one():
     pd = cloud_diagram(seed=4)
     inside = ball_labels(pd)
