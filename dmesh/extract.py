@@ -136,7 +136,8 @@ class SurfaceConfig:
                                # a piece of walls whose rim spans more than this of its area is a sheet
                                # (dmesh.solid.open_sheet_walls)
     min_thickness: float = 0.5  # ... and one thinner than this many mean edge lengths is a pocket in a sheet
-    max_hole: int = 64         # holes of the closed part with at most this many edges are filled
+    max_hole: int = 64         # holes of the closed part with at most this many edges are filled; open pieces
+                               # of more faces than this can be set aside (dmesh.solid.open_sheet_walls)
     max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped,
                                # and so is a closed piece this small beside a larger one
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
@@ -209,7 +210,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     dirs = solid.directions(cfg.directions, cfg.seed)
     votes = solid.walk_votes(pd, walls, dirs, sign)
     inside, dropped = solid.drop_open_regions(pd, walls, votes > 0.5, cfg.max_open, cfg.min_thickness)
-    aside = solid.open_sheet_walls(pd, walls, inside, cfg.max_open) if cfg.revote else np.zeros(len(walls), bool)
+    aside = solid.open_sheet_walls(pd, walls, inside, cfg.max_open, cfg.max_hole) if cfg.revote else np.zeros(len(walls), bool)
     if aside.any():  # sheets over a solid fooled the walks: vote again without them
         solids = walls & ~aside
         if solids.any():
