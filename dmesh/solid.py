@@ -29,9 +29,9 @@ so the part of a solid that a sheet covers from more than half the directions is
 that leaves puts a lid across the solid. So the vote is taken twice (`open_sheet_walls`): the walls of
 every large open piece (walls joined through edges with exactly two walls, more of them than a hole that
 gets filled has edges, whose rim of one-wall edges could span a lid of more than `max_open` of its area)
-that the first labelling left mostly off the inside/outside boundary are set aside as sheets, and the
-walks are repeated over the other walls. A closed surface with small holes keeps its say in the second
-vote.
+that the first labelling left (almost) entirely off the inside/outside boundary are set aside as sheets,
+and the walks are repeated over the other walls. A closed surface with small holes keeps its say in the
+second vote.
 
 Then (`drop_open_regions`, `repair_pinches`):
 - regions of inside tets (joined through non-wall faces) whose boundary is mostly not walls are open
@@ -188,18 +188,19 @@ def drop_open_regions(pd, walls: np.ndarray, inside: np.ndarray, max_open: float
 
 
 def open_sheet_walls(pd, walls: np.ndarray, inside: np.ndarray, max_open: float, min_faces: int,
-                     min_boundary: float = 0.5) -> np.ndarray:
+                     max_boundary: float = 0.1) -> np.ndarray:
     """(F,) bool: the walls of the open pieces that `inside` leaves mostly off its boundary (module docstring).
 
     A piece is a set of walls joined through edges that exactly two walls share; its rim is its edges with
     a single wall (an edge with three or more walls, where pieces meet, is not rim). A piece is open when
     the disk its rim could span, L^2 / 4 pi for rim length L (an upper bound on the area of its holes), is
     more than `max_open` of its area: a sheet's rim spans a lid of about its own size, the few small holes
-    of a closed surface span almost nothing. An open piece of more than `min_faces` faces with less than
-    `min_boundary` of its area between an inside and an outside tet is a sheet the labelling did not treat
-    as part of a solid. Smaller pieces stay: they cover little of any walk's view, and a few stray faces off
-    the boundary can be what plugs a hole in it for the walks that pass there (set aside, the suzanne of the
-    `paper` preset lost 0.1e-3 of CD p2s to a larger hole fill).
+    of a closed surface span almost nothing. An open piece of more than `min_faces` faces with at most
+    `max_boundary` of its area between an inside and an outside tet is a sheet the labelling did not treat
+    as part of a solid (the mushroom's cap: none of it). Other pieces stay: a small one covers little of
+    any walk's view, and a piece partly on the boundary is partly a solid's surface (the `paper` suzanne
+    has one 45 % on it around an eye: set aside, the second vote leaked there, and a larger hole fill cost
+    0.1e-3 of CD p2s).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -226,7 +227,7 @@ def open_sheet_walls(pd, walls: np.ndarray, inside: np.ndarray, max_open: float,
     is_open = rim_length ** 2 / (4.0 * np.pi) > max_open * piece_area
     on_boundary = np.bincount(piece, area * boundary_mask(pd, inside)[ids], n)
     big = np.bincount(piece, minlength=n) > min_faces
-    sheet = is_open & big & (on_boundary < min_boundary * piece_area)
+    sheet = is_open & big & (on_boundary <= max_boundary * piece_area)
     out[ids[sheet[piece]]] = True
     return out
 
