@@ -210,7 +210,9 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     dirs = solid.directions(cfg.directions, cfg.seed)
     votes = solid.walk_votes(pd, walls, dirs, sign)
     inside, dropped = solid.drop_open_regions(pd, walls, votes > 0.5, cfg.max_open, cfg.min_thickness)
-    aside = solid.open_sheet_walls(pd, walls, inside, cfg.max_open, cfg.max_hole) if cfg.revote else np.zeros(len(walls), bool)
+    aside = np.zeros(len(walls), bool)
+    if cfg.revote:
+        aside = solid.open_sheet_walls(pd, walls, inside, cfg.max_open, cfg.max_hole)
     if aside.any():  # sheets over a solid fooled the walks: vote again without them
         solids = walls & ~aside
         if solids.any():

@@ -197,10 +197,8 @@ def open_sheet_walls(pd, walls: np.ndarray, inside: np.ndarray, max_open: float,
     more than `max_open` of its area: a sheet's rim spans a lid of about its own size, the few small holes
     of a closed surface span almost nothing. An open piece of more than `min_faces` faces with at most
     `max_boundary` of its area between an inside and an outside tet is a sheet the labelling did not treat
-    as part of a solid (the mushroom's cap: none of it). Other pieces stay: a small one covers little of
-    any walk's view, and a piece partly on the boundary is partly a solid's surface (the `paper` suzanne
-    has one 45 % on it around an eye: set aside, the second vote leaked there, and a larger hole fill cost
-    0.1e-3 of CD p2s).
+    as part of a solid. Other pieces stay: a small one covers little of any walk's view (and may plug a
+    hole for the walks that pass there), and a piece partly on the boundary is partly a solid's surface.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -345,5 +343,5 @@ def wall_signs(pd, walls: np.ndarray, points: np.ndarray, normals: np.ndarray, k
     return out
 
 
-__all__ = ["directions", "walk_votes", "drop_open_regions", "open_sheet_walls", "repair_pinches", "boundary_mask",
-           "oriented_boundary", "wall_signs", "tet_volumes", "face_areas"]
+__all__ = ["directions", "walk_votes", "drop_open_regions", "open_sheet_walls", "repair_pinches",
+           "boundary_mask", "oriented_boundary", "wall_signs", "tet_volumes", "face_areas"]

@@ -5,7 +5,7 @@ crosses the solid's surface and then the sheet counts two crossings and calls th
 vote sets such sheets aside. Each case is one point-cloud run of DMesh (`fast` preset, 100K samples with
 their normals, seed 0; once with `num_init` 2500, a coarse mesh like the `paper` preset's, and once with the
 preset's 40K seeds) whose final state is extracted twice: "one vote" (`SurfaceConfig(revote=False)`, the
-output until 4 December) and "two votes" (the default). Shapes: the mixed class (plant, mushroom, flag_box,
+surface step without the second vote) and "two votes" (the default). Shapes: the mixed class (plant, mushroom, flag_box,
 suzanne), where sheets and solids meet, and one closed and one open shape as controls.
 
 Figures as in `eval.bench.quality` (`oriented`, `any_side`, watertight, boundary and non-manifold edges, CD p2s
@@ -20,7 +20,7 @@ from eval.bench.common import markdown_table, write_report
 from eval.bench.quality import SAMPLES, _gt, figures
 
 SHAPES = ("plant", "mushroom", "flag_box", "suzanne", "torus", "bowl")
-SEEDS = (2500, 40_000)
+NUM_INIT = (2500, 40_000)
 
 
 def _case(name: str, num_init: int) -> list[dict]:
@@ -49,7 +49,7 @@ def _case(name: str, num_init: int) -> list[dict]:
 def main(out: str = "reports", quick: bool = False) -> None:
     rows = []
     for name in SHAPES[1:2] if quick else SHAPES:
-        for num_init in SEEDS[:1] if quick else SEEDS:
+        for num_init in NUM_INIT[:1] if quick else NUM_INIT:
             rows += _case(name, num_init)
     columns = ["shape", "num_init", "variant", "faces", "oriented", "any_side", "watertight", "boundary_edges",
                "nonmanifold_edges", "components", "set_aside", "hole_faces", "cd_p2s_1e3"]
