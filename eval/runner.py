@@ -421,6 +421,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         out = mesh_path_for(work, spec.key)
         write_mesh(mesh, out)
         metrics = score(mesh, gt, spec.inputs, result.info)
+        _warn_post_step_damage(spec, result.info, metrics)
         timings = {k: float(v) for k, v in dict(result.timings).items()}
         if "total" not in timings:
             raise ValueError("the method's timings lack 'total'")
@@ -432,6 +433,18 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())
         drop_checkpoint(work, spec.key)  # a failing run starts over when retried
         return {"status": "failed", "error": one_line(exc)}
+
+
+def _warn_post_step_damage(spec: RunSpec, info, metrics) -> None:
+    """Logs a warning when the run's final CD p2s is well above the monitor's last one (`eval.reports.checks`):
+    something after the last step (the surface step) damaged the mesh."""
+    from eval.reports.checks import GAP_RATIO, monitor_gap
+
+    gap = monitor_gap(info, metrics.get("cd_p2s"))
+    if gap is not None and gap[0] > GAP_RATIO:
+        log.warning("run %s (%s on %s): final CD p2s %.3g is %.2fx the last monitored mesh's (%.3g): the mesh lost "
+                    "accuracy after its last step", spec.key[:12], spec.method, spec.shape.id, metrics["cd_p2s"],
+                    gap[0], gap[1]["cd_p2s"])
 
 
 def _child(spec: RunSpec, gt_path: str, work: str, conn, threads: int) -> None:

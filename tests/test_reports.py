@@ -384,3 +384,37 @@ def test_recipe_rows_say_when_runs_are_older_than_the_recipe():
         "(1 of its 2 runs were made by earlier code of the method, which may predate part of this recipe.)")
     one = recipe_rows(df.iloc[2:], "pointcloud")[0]["recipe"]
     assert one.endswith("(its one run was made by earlier code of the method, which may predate part of this recipe.)")
+
+
+def test_checks_list_runs_that_lost_accuracy_after_their_last_step(tmp_path):
+    """A run whose final CD is 2x its last monitored one is listed (in checks.md and index.html); one at 1.05x,
+    one without a monitored CD and a failed run are checked or skipped, not listed."""
+    from eval.reports.checks import GAP_RATIO, gap_rows, monitor_gap
+
+    def curve(*cds):
+        return [{"phase": 1, "step": 50 * i + 49, "loss": 0.01, "cd_p2s": c} for i, c in enumerate(cds)]
+
+    path = tmp_path / "work" / "results.sqlite"
+    with Store(path) as s:
+        for r in [_row("bad", "dmesh", "mushroom", "mixed", "done", 2e-3, 5e-3, 9.0,
+                       info={"curve": curve(3e-3, 1e-3)}),          # last monitored 1e-3, final 2e-3
+                  _row("ok", "dmesh", "torus", "closed", "done", 1.05e-3, 5e-3, 9.0,
+                       info={"curve": curve(1e-3)}),
+                  _row("nomon", "dmesh", "bowl", "open", "done", 9e-3, 9e-3, 9.0,
+                       info={"curve": [{"phase": 1, "step": 49, "loss": 0.01, "cd_p2s": None}]}),
+                  _row("psr", "psr", "torus", "closed", "done", 1e-3, 5e-3, 1.0),
+                  _row("failed", "dmesh", "plant", "mixed", "failed", error="RuntimeError: x")]:
+            s.upsert(r)
+        df = s.dataframe()
+    rows, checked = gap_rows(df)
+    assert checked == 2 and [r["key"] for r in rows] == ["bad"]
+    assert rows[0]["ratio"] == pytest.approx(2.0) and rows[0]["monitor_cd_p2s"] == pytest.approx(1e-3)
+    assert monitor_gap({"curve": curve(1e-3)}, None) is None and monitor_gap({}, 1e-3) is None
+    assert monitor_gap({"curve": curve(1e-3)}, GAP_RATIO * 1e-3)[0] == pytest.approx(GAP_RATIO)
+    out = tmp_path / "rep"
+    write_reports(path, out, renders=False)
+    md = (out / "checks.md").read_text()
+    assert "Runs with a monitored curve: 2; over 1.25x: 1." in md and "mushroom" in md and "torus" not in md
+    assert "| 2.00 |" in md
+    assert list(csv.DictReader((out / "checks.csv").open()))[0]["key"] == "bad"
+    assert "checks.md" in (out / "index.html").read_text()

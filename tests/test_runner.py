@@ -621,3 +621,22 @@ def test_plan_counts_stored_runs_and_times_the_rest_by_their_stored_twins(fake, 
     assert "sweep" in out and "  fake_hull: " in out
     with Store(runner.db_path) as store:
         assert len(store.rows()) == before  # nothing ran
+
+
+def test_a_run_that_lost_accuracy_after_its_last_step_is_warned_about(caplog):
+    """The runner logs a warning when the final CD p2s is well above the monitor's last one (and none when
+    they agree, or the run has no curve)."""
+    import logging
+    from types import SimpleNamespace
+
+    from eval.runner import _warn_post_step_damage
+
+    spec = SimpleNamespace(key="abcdef0123456789", method="dmesh", shape=SimpleNamespace(id="mushroom"))
+    info = {"curve": [{"phase": 2, "step": 9, "loss": 0.01, "cd_p2s": 1e-3}]}
+    with caplog.at_level(logging.WARNING, logger="eval.runner"):
+        _warn_post_step_damage(spec, info, {"cd_p2s": 1.1e-3})
+        _warn_post_step_damage(spec, {}, {"cd_p2s": 5e-3})
+        assert not caplog.records
+        _warn_post_step_damage(spec, info, {"cd_p2s": 3e-3})
+    assert len(caplog.records) == 1 and "3.00x the last monitored" in caplog.records[0].getMessage()
+    assert "mushroom" in caplog.records[0].getMessage()

@@ -9,6 +9,8 @@
     multiview_fast.md/.csv                                the multi-view fast preset's settings study, per run
     figures/bars_<kind>.png                               per-class bar plots of CD and time
     figures/renders_<kind>_<shape>.png                    GT, input and each method's mesh side by side
+    checks.md/.csv                                        runs whose final mesh is further from the GT than
+                                                          their last monitored one (damage after the steps)
     index.html                                            links and shows all of the above
 
 Modules: `tables` (aggregation, Markdown / CSV), `figures` (renders, plots), `html` (the index page),
@@ -175,6 +177,22 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         files, body = write_robustness(df_all, out, db, work, renders=renders)
         written += files
         sections.append(("Robustness: corrupted inputs, simulated scans, matched budgets", body))
+
+    from eval.reports.checks import GAP_RATIO, gap_rows, write_checks
+
+    check_files = write_checks(df_all, out)
+    written += check_files
+    gaps, checked = gap_rows(df_all)
+    body = [f"<p class='links'><a href='{check_files[0].name}'>Markdown</a> "
+            f"<a href='{check_files[1].name}'>CSV</a></p>",
+            f"<p class='note'>Runs with a monitored curve: {checked}; final CD p2s over {GAP_RATIO:g}x the last "
+            f"monitored one: {len(gaps)}.</p>"]
+    if gaps:
+        body.append(table_html(gaps, [("method", "method", None), ("shape", "shape", None),
+                                      ("input_kind", "input", None), ("monitor_cd_p2s", "monitor CD p2s (x1e-3)", 1e3),
+                                      ("cd_p2s", "final CD p2s (x1e-3)", 1e3), ("ratio", "ratio", 1, ".2f"),
+                                      ("earlier_code", "earlier code", None)]))
+    sections.append(("Checks: final mesh against the last monitored mesh", "\n".join(body)))
 
     if renders and len(df):
         figs = render_figures(df, db, work, figdir, progress=progress)
