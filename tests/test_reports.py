@@ -129,8 +129,9 @@ def test_empty_store_gives_empty_tables_not_errors(tmp_path):
     assert names == sorted(["table2_pointcloud.md", "table2_pointcloud.csv", "table2_multiview.md",
                             "table2_multiview.csv", "table1.md", "table1.csv", "index.html", "ablation_weight.md",
                             "ablation_weight.csv", "ablation_quality.md", "ablation_quality.csv",
-                            "recipes_size.md", "recipes_size.csv"])
+                            "recipes_size.md", "recipes_size.csv", "checks.md", "checks.csv"])
     assert "No point cloud runs" in (tmp_path / "rep" / "table2_pointcloud.md").read_text()
+    assert "Runs with a monitored curve: 0; over 1.25x: 0." in (tmp_path / "rep" / "checks.md").read_text()
 
 
 def test_write_reports_writes_everything_it_links(store_path, tmp_path):
