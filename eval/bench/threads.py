@@ -24,6 +24,8 @@ def _one(name: str, recipe: str, threads: int) -> dict:
     """One reconstruction in this process (already capped at `threads`)."""
     import time
 
+    import numpy as np
+
     from datasets.sampling import sample_points
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct
@@ -37,8 +39,6 @@ def _one(name: str, recipe: str, threads: int) -> dict:
     t0 = time.perf_counter()
     res = reconstruct(pts, nrm, cfg)
     seconds = time.perf_counter() - t0
-    import numpy as np
-
     v, f = np.ascontiguousarray(res.mesh.vertices), np.ascontiguousarray(res.mesh.faces)
     return {"shape": name, "recipe": recipe, "threads": threads, "faces": int(len(f)),
             "hash": hashlib.sha1(v.tobytes() + f.tobytes()).hexdigest()[:12],

@@ -178,15 +178,15 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         written += files
         sections.append(("Robustness: corrupted inputs, simulated scans, matched budgets", body))
 
-    from eval.reports.checks import GAP_RATIO, gap_rows, write_checks
+    from eval.reports.checks import GAP_RATIO, gap_rows, summary, write_checks
 
-    check_files = write_checks(df_all, out)
+    gaps, ratios = gap_rows(df_all)
+    check_files = write_checks(gaps, ratios, out)
     written += check_files
-    gaps, checked = gap_rows(df_all)
     body = [f"<p class='links'><a href='{check_files[0].name}'>Markdown</a> "
             f"<a href='{check_files[1].name}'>CSV</a></p>",
-            f"<p class='note'>Runs with a monitored curve: {checked}; final CD p2s over {GAP_RATIO:g}x the last "
-            f"monitored one: {len(gaps)}.</p>"]
+            f"<p class='note'>Runs with a monitored curve: {len(ratios)}; final CD p2s over {GAP_RATIO:g}x the last "
+            f"monitored one: {len(gaps)}.{_html.escape(summary(ratios))}</p>"]
     if gaps:
         body.append(table_html(gaps, [("method", "method", None), ("shape", "shape", None),
                                       ("input_kind", "input", None), ("monitor_cd_p2s", "monitor CD p2s (x1e-3)", 1e3),

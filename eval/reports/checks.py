@@ -3,10 +3,9 @@
 A DMesh run with gradient steps records the harness monitor's CD p2s of the mesh extracted every few steps
 (`info["curve"]`, `baselines/dmesh_pointcloud.py`). That extraction is the raw one; the returned mesh has also
 been through the surface step (inside/outside vote, hole filling, orientation). A final CD well above the last
-monitored one means the post-process damaged the mesh, which no table shows by itself (the point-cloud `paper`
-mushroom came out at 5x its last monitored CD before the surface step's second vote). CD p2s has no sampling
-floor, so the two figures agree to a few percent on an undamaged run although the monitor uses 20K samples
-per side and the final metrics the sweep's count.
+monitored one means the post-process damaged the mesh, which no table shows by itself. CD p2s has no sampling
+floor, so the two figures agree closely on an undamaged run although the monitor uses 20K samples per side
+and the final metrics the sweep's count.
 
     checks.md / .csv    every done run whose final CD p2s exceeds its last monitored one by more than
                         `GAP_RATIO`, with the number of runs checked
@@ -18,8 +17,7 @@ from pathlib import Path
 from eval.io import write_text
 from eval.reports.tables import FRAME_NOTE, display_name, markdown, method_label, num, to_csv
 
-#: Final CD p2s / last monitored CD p2s above which a run is listed. Undamaged runs in the stored sweeps are
-#: at 0.88-1.08; the damaged mushroom runs at 1.39-5.
+#: Final CD p2s / last monitored CD p2s above which a run is listed (README, "Damage after the last step").
 GAP_RATIO = 1.25
 CSV_COLUMNS = ["method", "shape", "category", "input_kind", "seed", "key", "last_step", "monitor_cd_p2s",
                "cd_p2s", "ratio", "earlier_code"]
@@ -37,18 +35,20 @@ def monitor_gap(info, cd_p2s) -> tuple[float, dict] | None:
     return final / float(last["cd_p2s"]), last
 
 
-def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], int]:
-    """(runs over `ratio`, worst first; the number of done runs with a monitored curve) of a
+def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], list[float]]:
+    """(runs over `ratio`, worst first; the ratio of every done run with a monitored curve) of a
     `Store.dataframe()` selection."""
     if df is None or not len(df) or "info" not in df.columns:
-        return [], 0
-    now = _code_versions(set(df["method"]))
-    rows, checked = [], 0
+        return [], []
+    from eval.reports.recipes import current_code_version
+
+    now = {m: current_code_version(m) for m in set(df["method"])}
+    rows, ratios = [], []
     for _, r in df[df["status"] == "done"].iterrows():
         gap = monitor_gap(r["info"], r.get("cd_p2s"))
         if gap is None:
             continue
-        checked += 1
+        ratios.append(gap[0])
         if gap[0] <= ratio:
             continue
         last = gap[1]
@@ -60,33 +60,25 @@ def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], int]:
                      "monitor_cd_p2s": float(last["cd_p2s"]), "cd_p2s": float(r["cd_p2s"]), "ratio": gap[0],
                      "earlier_code": "yes" if version and r.get("code_version") != version else ""})
     rows.sort(key=lambda row: -row["ratio"])
-    return rows, checked
+    return rows, ratios
 
 
-def _code_versions(methods) -> dict:
-    """{method: the code version of its sources now}, for the methods registered here."""
-    from eval.sweep import code_version, get_method
-
-    out = {}
-    for m in methods:
-        try:
-            out[m] = code_version(get_method(m))
-        except (ValueError, OSError):  # an unregistered method or unreadable sources: nothing to compare
-            pass
-    return out
+def summary(ratios: list[float]) -> str:
+    """" The others: LO-HI." (the range of the ratios at most `GAP_RATIO`), or "" when there are none."""
+    others = [r for r in ratios if r <= GAP_RATIO]
+    return f" The others: {min(others):.2f}-{max(others):.2f}." if others else ""
 
 
-def write_checks(df, out: str | Path) -> list[Path]:
-    """Writes `checks.{md,csv}` under `out`; returns the paths."""
+def write_checks(rows: list[dict], ratios: list[float], out: str | Path) -> list[Path]:
+    """Writes `checks.{md,csv}` under `out` from `gap_rows`' result; returns the paths."""
     out = Path(out)
-    rows, checked = gap_rows(df)
     md = ["# Checks: final mesh against the last monitored mesh", "",
           "Every done run whose final CD p2s is more than "
           f"{GAP_RATIO:g}x the harness monitor's CD p2s of its last monitored mesh (the raw extraction during the "
           "steps, 20K samples per side; the final figure has the sweep's samples and comes after the surface "
           "step). A listed run lost accuracy after its last step: look at its render and its surface step. "
           "*earlier code*: the method's code has changed since the run. " + FRAME_NOTE + " CD p2s x1e-3.", ""]
-    md.append(f"Runs with a monitored curve: {checked}; over {GAP_RATIO:g}x: {len(rows)}.")
+    md.append(f"Runs with a monitored curve: {len(ratios)}; over {GAP_RATIO:g}x: {len(rows)}." + summary(ratios))
     md.append("")
     if rows:
         md.append(markdown(rows, [("method", "method", None), ("shape", "shape", None),
@@ -101,4 +93,4 @@ def write_checks(df, out: str | Path) -> list[Path]:
     return [md_path, csv_path]
 
 
-__all__ = ["GAP_RATIO", "monitor_gap", "gap_rows", "write_checks"]
+__all__ = ["GAP_RATIO", "monitor_gap", "gap_rows", "summary", "write_checks"]

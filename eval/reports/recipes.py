@@ -51,15 +51,21 @@ def recipe_rows(df, input_kind: str) -> list[dict]:
 def _older_runs(method: str, runs) -> int:
     """How many of `runs` (store rows of `method`) carry another code version than the method's sources now:
     the recipe text is the current code's, so a report says when its rows are older."""
-    if "code_version" not in getattr(runs, "columns", ()):
-        return 0
-    try:
-        from eval.sweep import code_version, get_method
-
-        now = code_version(get_method(method))
-    except (ValueError, OSError):  # an unregistered method or unreadable sources: nothing to compare
+    now = current_code_version(method)
+    if now is None or "code_version" not in getattr(runs, "columns", ()):
         return 0
     return int((runs["code_version"] != now).sum())
+
+
+def current_code_version(method: str) -> str | None:
+    """The code version of `method`'s sources now (`eval.sweep.code_version`); None for an unregistered method
+    or unreadable sources (nothing to compare)."""
+    from eval.sweep import code_version, get_method
+
+    try:
+        return code_version(get_method(method))
+    except (ValueError, OSError):
+        return None
 
 
 def recipe_markdown(rows: list[dict]) -> str:
@@ -74,4 +80,4 @@ def recipe_markdown(rows: list[dict]) -> str:
     return "\n".join(out) + "\n"
 
 
-__all__ = ["recipe_rows", "recipe_markdown", "DMESH_METHODS"]
+__all__ = ["recipe_rows", "recipe_markdown", "current_code_version", "DMESH_METHODS"]
