@@ -42,14 +42,14 @@ class DMeshPointCloud(Method):
         if inputs.seed != cfg.seed:
             cfg = dataclasses.replace(cfg, seed=int(inputs.seed))
         curve = []
-        probe = self._probe(inputs.monitor, cfg, pts, curve, sw) if cfg.steps_phase1 + cfg.steps_phase2 else None
+        probe = self._probe(inputs.monitor, cfg, curve, sw) if cfg.steps_phase1 + cfg.steps_phase2 else None
         mesh, info = self._output(reconstruct(pts, nrm, cfg, probe=probe, state_path=inputs.checkpoint), cfg, sw)
         if curve:
             info["curve"] = curve
         return mesh, info
 
     @staticmethod
-    def _probe(monitor, cfg, pts, curve: list, sw: Stopwatch):
+    def _probe(monitor, cfg, curve: list, sw: Stopwatch):
         """The `reconstruct` probe that records the curve: loss, and the harness monitor's figures (CD p2s
         against the GT) of the mesh extracted every CURVE_EVERY steps; its seconds go to the "monitor" stage."""
         import time
@@ -59,16 +59,14 @@ class DMeshPointCloud(Method):
         from dmesh.recon.pointcloud import extract
         from dmesh.model import DMesh
 
-        center = pts.mean(0)  # reconstruct's normalisation (its docstring, step 1)
-        radius = float(np.linalg.norm(pts - center, axis=1).max())
-
         def probe(params, record):
             t0 = time.perf_counter()
             point = {"phase": int(record["phase"]), "step": int(record["step"]), "loss": float(record["loss"])}
             if monitor is not None:
                 dm = DMesh(params["points"], params["weights"], params["reals"])
                 mesh = extract(dm, cfg.threshold, None, cfg.extraction)
-                mesh.vertices = np.asarray(mesh.vertices) * radius + center
+                # reconstruct's frame, of the filtered input (the raw input's own frame is off when outliers go)
+                mesh.vertices = np.asarray(mesh.vertices) / params["scale"] + params["center"]
                 point.update(monitor(mesh))
             curve.append(point)
             sw.timings["monitor"] = sw.timings.get("monitor", 0.0) + time.perf_counter() - t0

@@ -112,6 +112,9 @@ class _Run:
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
         self.chamfer = None
+        if probe is not None:  # the probe also gets the frame, which the input filters may have moved
+            every, fn = probe
+            probe = (every, lambda params, record: fn({**params, "center": self.center, "scale": self.scale}, record))
         self.loop = Loop(callback, state_path, fingerprint(pts_in, cfg), cfg.save_every,
                          extra_state=lambda: {"k": self.chamfer.k, "rng": self.rng.bit_generator.state,
                                               "probability": self.dm.state}, probe=probe)
@@ -297,7 +300,8 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
             {"stage": name} when a stage starts ("init", "phase1", "phase2", "extract").
         state_path: file for the resumable state; an existing state of the same input and config is resumed.
         probe: optional (every, fn): fn(params, record) after every `every`-th step of each phase and after
-            its last (`Loop`); params holds the current "points", "weights", "reals" tensors. For curves of
+            its last (`Loop`); params holds the current "points", "weights", "reals" tensors and the frame
+            ("center", "scale": input = unit frame / scale + center, after the input filters). For curves of
             figures that need the whole state (e.g. the extracted mesh's Chamfer distance).
     Returns:
         `PointCloudResult`.

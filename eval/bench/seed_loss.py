@@ -4,8 +4,8 @@ Two recipes on the torus (100K samples with normals, seed 0), the state after ev
 
 - `fast` start + position steps (40K seeds and their poles; lr = update bound = 1e-4, `tangent_weight` 0.2,
   positions only: the mildest steps tried in README's "Why the steps stall"). A pole lies near the medial
-  axis, about R = 0.1-0.3 from its seed, while seeds are h = 0.014 apart. A tet of three seeds and a pole has
-  a circumsphere of radius about R through the seeds, so a neighbouring seed that moves about h^2 / (2R)
+  axis, R from its seed, much farther than the seed spacing h. A tet of three seeds and a pole has a
+  circumsphere of radius about R through the seeds, so a neighbouring seed that moves about h^2 / (2R)
   towards the pole enters it and the tet is replaced by tets of four seeds (all real). `tolerance` is that
   estimate, with h the median distance from a seed to its nearest seed and R the median distance to its
   nearest imaginary point. Once the steps exceed it, all-real tets join into slabs (`largest cluster`), the
@@ -72,8 +72,6 @@ def _case(label: str, preset: str, overrides: dict, steps: int, every: int) -> l
 
     gt = _gt("torus")
     pts, nrm = sample_points(gt, 100_000, 0)
-    center = pts.mean(0)
-    radius = float(np.linalg.norm(pts - center, axis=1).max())
     rows = []
 
     def state(params, step):
@@ -83,7 +81,7 @@ def _case(label: str, preset: str, overrides: dict, steps: int, every: int) -> l
         present = np.zeros(len(real), bool)
         present[np.unique(pd.tets)] = True
         sheet = mesh_faces(pd, real, "sheet")
-        mesh = to_trimesh(pd.points * radius + center, pd.faces[sheet])
+        mesh = to_trimesh(pd.points / params["scale"] + params["center"], pd.faces[sheet])
         row = {"recipe": label, "step": step, "points": len(real), "present": int(present.sum()),
                "seeds": int(real.sum()), "seeds_on_mesh": len(np.unique(pd.faces[sheet])),
                "faces_all": int(mesh_faces(pd, real, "all").sum()), "faces_sheet": int(sheet.sum()),
@@ -102,7 +100,8 @@ def _case(label: str, preset: str, overrides: dict, steps: int, every: int) -> l
 
     start = PointCloudConfig.preset(preset, **overrides, steps_phase1=0, steps_phase2=0)
     res = reconstruct(pts, nrm, start)
-    state({"points": res.dmesh.points, "weights": res.dmesh.weights, "reals": res.dmesh.reals}, 0)
+    state({"points": res.dmesh.points, "weights": res.dmesh.weights, "reals": res.dmesh.reals,
+           "center": res.center, "scale": res.scale}, 0)
     cfg = PointCloudConfig.preset(preset, **overrides, steps_phase1=steps, steps_phase2=0)
     reconstruct(pts, nrm, cfg, probe=(every, probe))
     return rows
