@@ -1,6 +1,6 @@
 """Where the seeds go during phase-1 steps: why gradient steps cost faces (point clouds).
 
-Two recipes on the torus (100K samples with normals, seed 0), the state after every few phase-1 steps:
+Recipes on the torus (100K samples with normals, seed 0), the state after every few phase-1 steps:
 
 - `fast` start + position steps (40K seeds and their poles; lr = update bound = 1e-4, `tangent_weight` 0.2,
   positions only: the mildest steps tried in README's "Why the steps stall"). A pole lies near the medial
@@ -13,6 +13,9 @@ Two recipes on the torus (100K samples with normals, seed 0), the state after ev
 - `paper` preset (10K seeds and all their Voronoi vertices; all parameters, lr 3e-4): the seeds stay real,
   but the weight steps (weights start at 1 and are clamped to [0, 1], as upstream) shrink cells until their
   points drop out of the triangulation (`present`).
+- The same recipe at the `fast` preset's density (40K seeds and all their Voronoi vertices), once as
+  published and once without weight steps (positions and reals only): does a dense start with the paper's
+  imaginary points, nearer their seeds than poles, keep what the steps would otherwise lose?
 
 Columns: `present` points in the weighted Delaunay triangulation, of `points`; `seeds on mesh` real points
 that are vertices of a sheet-mode face; faces of the "all" and "sheet" extractions (`dmesh.extract`); the
@@ -30,6 +33,9 @@ CASES = (
     ("fast start + position steps", "fast",
      {"tangent_weight": 0.2, "lr": 1e-4, "update_bound": 1e-4, "train_phase1": ("points",)}, 10, 2),
     ("paper preset", "paper", {}, 100, 20),
+    ("paper preset, 40K seeds", "paper", {"num_init": 40_000}, 40, 10),
+    ("paper preset, 40K seeds, no weight steps", "paper", {"num_init": 40_000, "train_phase1": ("points", "reals")},
+     40, 10),
 )
 
 
