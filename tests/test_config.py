@@ -73,6 +73,8 @@ def test_multiview_config_validation():
         MultiViewConfig(reseed_phong=1.5)
     with pytest.raises(ValueError, match="init_preset"):
         MultiViewConfig(init="depth", init_preset="slow")
+    with pytest.raises(ValueError, match="init_pool_k"):
+        MultiViewConfig(init="depth", init_pool_k=3)
     depth = MultiViewConfig.depth()
     assert depth.init == "depth" and depth.epochs == 1 and depth.total_steps() == 0
     paper = MultiViewConfig.paper()

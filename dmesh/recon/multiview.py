@@ -81,7 +81,7 @@ from dmesh.recon.loop import (TRAIN_ALL, Loop, ReconstructionResult, determinist
                               mesh_mask)
 from dmesh.recon.optim import BoundedAdam
 from dmesh.recon.views import (BOX_MARGIN, Views, check_views, depth_channel, image_targets, lifted_points,
-                               normalisation)
+                               normalisation, smooth_from_pool)
 from dmesh.render import Camera, soft_render_views, tet_render_views
 from dmesh.sampling import sample_surface
 
@@ -102,36 +102,50 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
                rng: np.random.Generator, info: dict):
     """Epoch 0's DMesh from the depth pixels (`init="depth"`; not upstream): `cfg.init_points` of the lifted
     mask pixels (a random subset, normalised frame) go through the point-cloud reconstruction
-    (`dmesh.recon.pointcloud.reconstruct`, preset `cfg.init_preset`; "auto": `noisy` when the points' noise
-    ratio (`dmesh.recon.init.noise_ratio`) is above `DEPTH_NOISY_RATIO`, else `fast`), and its DMesh is mapped
-    into this frame (positions by the similarity, weights by its squared scale, so the power diagram is the same) with
-    every point clipped into the box. The depth images are half of the multi-view input; lifted, they are
-    a point cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid
-    start refined through the images (see `MultiViewConfig.depth`)."""
+    (`dmesh.recon.pointcloud.reconstruct`, preset `cfg.init_preset`), and its DMesh is mapped into this frame
+    (positions by the similarity, weights by its squared scale, so the power diagram is the same) with every
+    point clipped into the box. The depth images are half of the multi-view input; lifted, they are a point
+    cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid start refined
+    through the images (see `MultiViewConfig.depth`).
+
+    "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), each of its
+    points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the lifted pixels
+    (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
+    the subset, and the fit averages that many more noisy depths over the same patch than the point-cloud
+    `noisy` preset's smoothing of the subset alone (which "auto" takes when `init_pool_k` is 0)."""
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct as reconstruct_points
 
-    pts = (lifted_points(vw) - center) * scale
+    pixels = (lifted_points(vw) - center) * scale
+    pts = pixels
     if len(pts) > cfg.init_points:
         pts = pts[np.sort(rng.choice(len(pts), int(cfg.init_points), replace=False))]
     preset, ratio = depth_start_preset(pts, cfg.init_preset)
+    pooled = cfg.init_preset == "auto" and preset == "noisy" and cfg.init_pool_k > 0
+    if pooled:
+        k = min(int(cfg.init_pool_k), len(pixels))
+        log.info("depth start: the %d points fitted from their %d nearest of %d lifted pixels", len(pts), k,
+                 len(pixels))
+        pts, preset = smooth_from_pool(pts, pixels, k), "fast"
     pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=False)  # its mesh is not used
     fit = reconstruct_points(pts, None, pc_cfg)
     dm = fit.dmesh
     back = 1.0 / fit.scale
     points = np.clip(dm.points.detach().double().numpy() * back + fit.center, -box, box)
     info["init_depth"] = {"lifted_points": int(len(pts)), "points": len(dm), "faces": int(len(fit.mesh.faces)),
-                          "seconds": fit.timings.get("total"), "preset": preset, "noise_ratio": ratio}
+                          "seconds": fit.timings.get("total"), "preset": preset, "noise_ratio": ratio,
+                          "pool_k": k if pooled else 0, "pixels": int(len(pixels))}
     return DMesh(points, dm.weights.detach().double().numpy() * back**2, dm.reals.detach().double().numpy(),
                  cfg.probability_config())
 
 
 def depth_start_preset(points: np.ndarray, requested: str) -> tuple[str, float | None]:
     """(point-cloud preset, noise ratio or None) of the depth start: `requested` itself, except "auto", which
-    takes `noisy` (outliers dropped, then jet smoothing) when the lifted pixels `points` lie more than
-    `DEPTH_NOISY_RATIO` neighbour spacings off their local planes (`dmesh.recon.init.noise_ratio`), else `fast`.
-    Depth noise lifts every pixel off the surface along its ray; the smoothing takes most of it out, while on
-    clean pixels it only rounds edges, hence the measurement rather than one fixed preset."""
+    takes `noisy` (outliers dropped, then jet smoothing; `depth_init` smooths from all the pixels instead) when
+    the lifted pixels `points` lie more than `DEPTH_NOISY_RATIO` neighbour spacings off their local planes
+    (`dmesh.recon.init.noise_ratio`), else `fast`. Depth noise lifts every pixel off the surface along its ray;
+    the smoothing takes most of it out, while on clean pixels it only rounds edges, hence the measurement
+    rather than one fixed preset."""
     if requested != "auto":
         return requested, None
     ratio = noise_ratio(points)

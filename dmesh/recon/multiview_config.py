@@ -37,8 +37,12 @@ class MultiViewConfig(Presets):
 
     init: str = "grid"               # epoch 0 starts from a "grid" (upstream) or the "depth" pixels' DMesh
     init_points: int = 100_000       # "depth": lifted pixels given to the point-cloud reconstruction
-    init_preset: str = "auto"        # "depth": its `PointCloudConfig` preset; "auto": "noisy" when the lifted
-                                     # pixels look noisy (dmesh.recon.init.DEPTH_NOISY_RATIO), else "fast"
+    init_preset: str = "auto"        # "depth": its `PointCloudConfig` preset; "auto": "fast", after the pool
+                                     # smoothing below when the lifted pixels look noisy
+                                     # (dmesh.recon.init.DEPTH_NOISY_RATIO; "noisy" when init_pool_k is 0)
+    init_pool_k: int = 500           # "auto" on noisy pixels: each of the init_points is first fitted from its
+                                     # init_pool_k nearest of all the lifted pixels (not upstream;
+                                     # dmesh.recon.views.smooth_from_pool); 0: off
     grid: int = 20                   # epoch 0: grid^3 real points
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
@@ -126,6 +130,9 @@ class MultiViewConfig(Presets):
             raise ValueError(f"MultiViewConfig.init must be one of {INIT_MODES}, got {self.init!r}")
         if int(self.init_points) < 10:
             raise ValueError(f"MultiViewConfig.init_points must be >= 10, got {self.init_points}")
+        if int(self.init_pool_k) != 0 and int(self.init_pool_k) < 6:
+            raise ValueError(f"MultiViewConfig.init_pool_k must be 0 (off) or >= 6 (a quadratic jet has 6 "
+                             f"coefficients), got {self.init_pool_k}")
         if self.init_preset not in ("auto",) + POINTCLOUD_PRESETS:
             raise ValueError(f"MultiViewConfig.init_preset must be one of {('auto',) + POINTCLOUD_PRESETS}, "
                              f"got {self.init_preset!r}")
@@ -167,7 +174,7 @@ class MultiViewConfig(Presets):
     @classmethod
     def depth(cls, **overrides) -> "MultiViewConfig":
         """Depth pixels first (not upstream): epoch 0 is DMesh's point-cloud fit to 100K lifted depth pixels
-        (`depth_init`, point-cloud `fast` preset), then the multi-view extraction (the point-cloud extraction's
+        (`depth_init`, point-cloud `fast` preset; noisy pixels are first smoothed from all the pixels), then the multi-view extraction (the point-cloud extraction's
         one-sheet interior rule, which leaves open parts one sheet rather than the overlapping layers of thin
         tets the apex and visibility rules keep; the depth-consistency filter). No image-loss step
         (docs/preset_choices.md)."""
@@ -224,9 +231,9 @@ MULTIVIEW_RECIPES = {
                    "6 views per step at 128 pixels; interior faces removed by apex and visibility, faces off the "
                    "captured depth dropped, the epoch whose mesh renders closest to the images kept, then its "
                    "vertices moved along their normals by a least-squares fit to the depth maps (not upstream)."),
-    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud fit to 100K lifted depth pixels "
-                     "(its `fast` preset, or `noisy`, which smooths them first, when they look noisy), then the "
-                     "one-sheet interior rule and the depth filter; no image-loss step."),
+    "depth": (False, "an initialisation, not in the paper: DMesh's point-cloud fit (its `fast` preset) to 100K "
+                     "lifted depth pixels, each first fitted from its 500 nearest of all the pixels when they "
+                     "look noisy, then the one-sheet interior rule and the depth filter; no image-loss step."),
     "refine": (True, "not in the paper: the `depth` start, then 10 soft-renderer steps at lr 1e-5 and 5 "
                      "tetrahedral-renderer steps (6 views per step), keeping the start when the steps do not "
                      "lower the image loss over all views."),
