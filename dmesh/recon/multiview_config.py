@@ -174,9 +174,10 @@ class MultiViewConfig(Presets):
     @classmethod
     def depth(cls, **overrides) -> "MultiViewConfig":
         """Depth pixels first (not upstream): epoch 0 is DMesh's point-cloud fit to 100K lifted depth pixels
-        (`depth_init`, point-cloud `fast` preset; noisy pixels are first smoothed from all the pixels), then the multi-view extraction (the point-cloud extraction's
-        one-sheet interior rule, which leaves open parts one sheet rather than the overlapping layers of thin
-        tets the apex and visibility rules keep; the depth-consistency filter). No image-loss step
+        (`depth_init`, point-cloud `fast` preset; noisy pixels are first smoothed from all the pixels), then the
+        multi-view extraction (the point-cloud extraction's one-sheet interior rule, which leaves open parts one
+        sheet rather than the overlapping layers of thin tets the apex and visibility rules keep; the
+        depth-consistency filter). No image-loss step
         (docs/preset_choices.md)."""
         base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="sheet",
                     depth_tolerance=0.02, select_best=False, save_every=10)

@@ -3,7 +3,8 @@
 The start (`dmesh.recon.multiview.depth_start_preset`, `init_preset="auto"`) lifts the depth pixels of every
 view into 3D, keeps 100K of them at random and measures their noise ratio (`dmesh.recon.init.noise_ratio`:
 the median distance of a point to the plane of its 16 nearest neighbours, in neighbour spacings). Above
-`DEPTH_NOISY_RATIO` it takes the point-cloud `noisy` preset (outlier filter, then jet smoothing), else `fast`.
+`DEPTH_NOISY_RATIO` it first fits each of those points from its nearest of all the lifted pixels
+(`dmesh.recon.views.smooth_from_pool`); either way the point-cloud `fast` preset follows.
 This table gives that ratio for the harness's own captures (`datasets.capture.capture`, shapes normalised to
 radius 1, cameras at distance 2) with the sweeps' depth noise (`datasets.corrupt.add_depth_noise`, Gaussian,
 as a fraction of the radius), at the capture sizes the sweeps use. The threshold must sit between the
@@ -86,11 +87,12 @@ def main(out: str = "reports", quick: bool = False) -> None:
         for shape in shapes:
             for level, ratio in zip(levels, ratios(load_shape(shape), views, pixels, levels)):
                 rows.append({"shape": shape, "views": views, "pixels": pixels, "depth_noise": level,
-                             "ratio": ratio, "preset": "noisy" if ratio > DEPTH_NOISY_RATIO else "fast"})
+                             "ratio": ratio, "smoothing": "pool" if ratio > DEPTH_NOISY_RATIO else "none"})
                 print(f"  {shape} {views} views {pixels} px noise {level:g}: ratio {ratio:.3f}", flush=True)
-    cols = ["shape", "views", "pixels", "depth_noise", "ratio", "preset"]
+    cols = ["shape", "views", "pixels", "depth_noise", "ratio", "smoothing"]
     intro = (__doc__.split("\n\n", 1)[1].rsplit("Regenerate", 1)[0].strip()
-             + "\n\n" + summary(rows, DEPTH_NOISY_RATIO) + " `preset` is what the start takes.")
+             + "\n\n" + summary(rows, DEPTH_NOISY_RATIO)
+             + " `smoothing`: whether the start fits its points from all the pixels first.")
     write_report(out, "bench_depth_noise", "Noise ratio of lifted depth pixels (the depth start's preset choice)",
                  intro, markdown_table(rows, cols, {"ratio": ".3f", "depth_noise": "g"}), rows)
 
