@@ -9,6 +9,8 @@ world_to_camera (V, 4, 4), fov_y_degrees, resolution), in the conventions of `dm
 - `normalisation`: the similarity that takes the lifted depth pixels (`lifted_points`) to radius 1 around
   the origin, with every camera outside [-MIN_BOX, MIN_BOX]^3 (the tetrahedral renderer needs the cameras
   outside the points' convex hull).
+- `smooth_from_pool`: points moved onto the quadratic jets of their nearest lifted pixels (the noisy depth
+  start's smoothing).
 - `downsample`: area average to R pixels (any ratio, same field of view).
 - `image_targets`: the loss targets of `dmesh.recon.multiview` at R pixels, the depth channel
   (`depth_channel`) with or without the soft renderer's silhouette band (`soft_band_targets`).
