@@ -98,6 +98,18 @@ def test_rows_per_method_class_corruption_and_level(db):
     assert {r["category"] for r in bpa} == {"open"} and len(bpa) == 2
 
 
+def test_plot_levels_are_in_severity_order_whichever_method_comes_first():
+    """A method run on fewer levels (a study at one noise level) must not put its levels first on the x axis:
+    clean first, then mildest to harshest (views: most first)."""
+    def rows(method, levels, clean):
+        return [{"method": method, "level": v, "setting": "clean" if v == clean else "x"} for v in levels]
+
+    noise = rows("a", [0.0, 0.005], 0.0) + rows("b", [0.0, 0.0025, 0.005, 0.01], 0.0)
+    assert robustness.plot_levels(noise, "depth_noise") == [0.0, 0.0025, 0.005, 0.01]
+    views = rows("a", [64, 8], 64) + rows("b", [64, 16, 8], 64)
+    assert robustness.plot_levels(views, "views") == [64, 16, 8]
+
+
 def test_dmesh_ratio_against_the_best_other_method(db):
     """Each DMesh preset against the best of the other methods; a study's overrides get no row of their own."""
     with Store(db) as s:
