@@ -348,6 +348,13 @@ def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_pat
     md = (tmp_path / "rep" / "robustness.md").read_text()
     assert "## How noisy DMesh found each input" in md
     assert "| pointcloud | noise | 0.005 | 2 | 0.150 | 0.200 | 2 of 2 |" in md
+    # The multi-view depth start smooths from the pool (preset "fast", pool_k > 0), or with `noisy` before it.
+    assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.2, "preset": "fast",
+                                                                   "pool_k": 500}}) == (0.2, True)
+    assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.2, "preset": "noisy"}}) \
+        == (0.2, True)
+    assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.01, "preset": "fast",
+                                                                   "pool_k": 0}}) == (0.01, False)
 
 
 def test_capture_size_levels_take_the_clean_level_from_a_clean_run_whatever_the_store_order(tmp_path):

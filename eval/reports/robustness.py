@@ -239,21 +239,23 @@ def dmesh_ratios(rows: list[dict]) -> list[dict]:
 def _measured_noise(kind: str, info) -> tuple[float | None, bool | None]:
     """(noise ratio, smoothed) that a DMesh run measured on its input (`dmesh.recon.init.noise_ratio`): the
     point-cloud `fast` preset's info "noise_ratio" / "smooth_k", the multi-view depth start's "init_depth"
-    figures; None where the run did not record them (runs by code from before the figure)."""
+    figures (smoothed: from all the pixels, "pool_k" > 0, or by the `noisy` preset, as before the pool);
+    None where the run did not record them (runs by code from before the figure)."""
     info = info if isinstance(info, dict) else {}
     if kind == "multiview":
         info = info.get("init_depth") if isinstance(info.get("init_depth"), dict) else {}
         ratio, preset = info.get("noise_ratio"), info.get("preset")
-        return ratio, None if preset is None or ratio is None else preset == "noisy"
+        smoothed = preset == "noisy" or int(info.get("pool_k") or 0) > 0
+        return ratio, None if preset is None or ratio is None else smoothed
     ratio, k = info.get("noise_ratio"), info.get("smooth_k")
     return ratio, None if k is None else int(k) > 0
 
 
 def noise_rows(df) -> list[dict]:
     """Per input kind, corruption and level: the noise ratio DMesh's default presets measured on the inputs
-    (point cloud: `fast`, which smooths above `NOISY_RATIO`; multi-view: the `depth` start, which takes the
-    `noisy` point-cloud preset above `DEPTH_NOISY_RATIO`), min and max over the runs, and how many of them
-    smoothed. The calibration of both thresholds on the sweeps' own inputs."""
+    (point cloud: `fast`, which smooths above `NOISY_RATIO`; multi-view: the `depth` start, which smooths from
+    all the pixels above `DEPTH_NOISY_RATIO`), min and max over the runs, and how many of them smoothed. The
+    calibration of both thresholds on the sweeps' own inputs."""
     if df is None or not len(df):
         return []
     sub = _labelled(df)
@@ -479,7 +481,8 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "distance of a point to the plane of its 16 nearest neighbours, in neighbour spacings), over the "
                 "runs of the default presets: point clouds, `fast` (after its outlier filter; it smooths the input "
                 f"as `noisy` does above `NOISY_RATIO` = {NOISY_RATIO:g}); multi-view, the `depth` start on the lifted "
-                f"pixels (it takes the `noisy` point-cloud preset above `DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g}). "
+                f"pixels (above `DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g} it fits each point from its nearest of all "
+                "the pixels; before 4 December it took the `noisy` point-cloud preset). "
                 "`smoothed`: how many of the runs that recorded the choice smoothed (blank: runs by code from "
                 "before the choice).",
                 "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
