@@ -342,8 +342,8 @@ def test_smooth_from_pool_fits_a_quadratic_and_averages_the_pool():
 def test_noisy_depth_start_fits_the_subset_from_every_pixel(sphere, sphere_views, one_thread):
     """With depth noise the "auto" start fits its points from all the lifted pixels and takes the point-cloud
     `fast` preset; its mesh is closer to the sphere than the start that smooths the subset alone
-    (`init_pool_k=0`: the point-cloud `noisy` preset). Measured (seed 0, one thread): 3.5e-3 against 5.0e-3 at
-    this capture's 74K pixels, noise 2 % of the radius, 5K points; at 0.5 % both reach this coarse fit's floor."""
+    (`init_pool_k=0`: the point-cloud `noisy` preset). The noise is 2 % of the radius: at 0.5 % both starts
+    reach the floor of this small capture's coarse fit."""
     from datasets.corrupt import add_depth_noise
 
     noisy = add_depth_noise(sphere_views, 0.02, seed=0)

@@ -104,12 +104,12 @@ def smooth_from_pool(points: np.ndarray, pool: np.ndarray, k: int, workers: int 
     Per point: the neighbours' centroid and principal plane (smallest-eigenvalue direction as the normal),
     the least-squares height field h = a + b u + c v + d u^2 + e u v + f v^2 over that plane, and the point
     projected onto it along the normal (its own u, v kept). Noise along the normal falls with the number of
-    neighbours, so a pool ten times denser than `points` takes the same neighbourhood radius to ten times the
-    samples. A quadratic height field over that plane is reproduced (up to the tiny ridge, `POOL_RIDGE`).
+    neighbours, and a denser pool gives more of them within the same radius. A quadratic height field over
+    that plane is reproduced (up to the tiny ridge, `POOL_RIDGE`).
 
     Written with SciPy and NumPy: CGAL's `jet_smooth_point_set` (`dmesh.recon.init.smooth_points`) fits
     every point of a set from that same set, so fitting a subset from all the pixels would mean smoothing all
-    of them (about 15 times the fits for 100K of 1.5M pixels). ValueError for k < 6 or k > len(pool).
+    of them, many times the fits. ValueError for k < 6 or k > len(pool).
     """
     from scipy.spatial import cKDTree
 
