@@ -591,8 +591,9 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
         "non_orientable"), "gt_orientable": False for the last two,
         "gt_watertight", "gt_boundary_edges", "gt_non_manifold_edges", "gt_components",
         "gt_euler_characteristic", "gt_genus": the GT's `topology` figures, to set beside the prediction's;
-        then the `mesh_stats` keys of the prediction (vertices, faces, edges, boundary_edges, boundary_loops,
-        non_manifold_edges, non_manifold_vertices, components, watertight, winding_consistent,
+        then the `mesh_stats` keys of the prediction with its vertices merged by position
+        (`datasets.meshes.merge_vertices`, as `load_mesh` reads a file; vertices, faces, edges, boundary_edges,
+        boundary_loops, non_manifold_edges, non_manifold_vertices, components, watertight, winding_consistent,
         inconsistent_winding_edges, euler_characteristic, genus, self_intersecting_faces, degenerate_faces,
         aspect_ratio_mean, aspect_ratio_max, angles_below_10_pct)}.
     """
@@ -629,7 +630,12 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
     out.update(gt_figures)
     import trimesh
 
-    out.update(mesh_stats(trimesh.Trimesh(pv, pf, process=False), self_intersections=self_intersections))
+    from datasets.meshes import merge_vertices
+
+    # Topology as a file of this mesh reads once loaded (`load_mesh`, trimesh's default, an STL): copies of a
+    # vertex on one position are one vertex, so splitting a pinch or a branch without moving it hides nothing.
+    mv, mf = merge_vertices(pv, pf) if len(pf) else (pv, pf)
+    out.update(mesh_stats(trimesh.Trimesh(mv, mf, process=False), self_intersections=self_intersections))
     if re_fp_vertices is not None:
         out.update(re_fp(pf, gf, n_gt_vertices=int(re_fp_vertices)))
     return out

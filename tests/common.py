@@ -85,13 +85,22 @@ def cycle(face) -> tuple:
     return tuple(face[k:]) + tuple(face[:k])
 
 
-def check_closed(faces: np.ndarray, points: np.ndarray):
-    """Asserts the faces form a watertight, consistently wound 2-manifold; returns it as a trimesh."""
-    import trimesh
-
+def check_manifold(faces: np.ndarray, points: np.ndarray):
+    """Asserts no edge has more than two faces and every vertex one fan, once vertices on one position are
+    merged (as a file of the mesh reads back: a pinch split into copies on one point is still a pinch)."""
+    from datasets.meshes import merge_vertices
     from dmesh import repair
+
+    _, merged = merge_vertices(points, faces)
+    assert len(repair.nonmanifold_edges(merged)) == 0 and len(repair.nonmanifold_vertices(merged)) == 0
+
+
+def check_closed(faces: np.ndarray, points: np.ndarray):
+    """Asserts the faces form a watertight, consistently wound 2-manifold (`check_manifold`); returns it as a
+    trimesh."""
+    import trimesh
 
     mesh = trimesh.Trimesh(points, faces, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent
-    assert len(repair.nonmanifold_edges(faces)) == 0 and len(repair.nonmanifold_vertices(faces)) == 0
+    check_manifold(faces, points)
     return mesh

@@ -175,6 +175,21 @@ def test_bow_tie_vertex_and_reversed_face():
     assert empty["edges"] == 0 and empty["genus"] is None and empty["watertight"] is False
 
 
+def test_compute_metrics_counts_a_pinch_split_into_copies_on_one_point(sphere):
+    """Two spheres touching at one point, written with that point twice: a file of it reads back pinched,
+    so the metrics (as `load_mesh` and `dmesh metrics`) merge vertices by position before counting."""
+    a = trimesh.Trimesh(sphere.vertices, sphere.faces, process=False)
+    top = int(np.argmax(a.vertices[:, 2]))
+    b = trimesh.Trimesh(a.vertices * [1, 1, -1] + [0, 0, 2 * a.vertices[top, 2]], a.faces[:, ::-1], process=False)
+    pair = trimesh.Trimesh(np.vstack([a.vertices, b.vertices]), np.vstack([a.faces, b.faces + len(a.vertices)]),
+                           process=False)
+    as_written = topology(pair.vertices, pair.faces)
+    assert (as_written["non_manifold_vertices"], as_written["components"]) == (0, 2)
+    m = compute_metrics(pair, sphere, n=2000, self_intersections=False)
+    assert (m["non_manifold_vertices"], m["components"], m["vertices"]) == (1, 1, 2 * len(a.vertices) - 1)
+    assert m["watertight"] and m["non_manifold_edges"] == 0 and m["genus"] is None
+
+
 def test_topology_agrees_with_trimesh():
     """Euler characteristic, watertightness and winding consistency against trimesh's own, on meshes with
     boundaries, several components, unused vertices and a reversed face."""

@@ -46,6 +46,47 @@ def test_sheets_meeting_at_an_edge_are_split_and_folds_dropped():
     assert keep.sum() == 4 and not keep[2]
 
 
+def test_split_copies_move_apart_into_their_own_faces():
+    from datasets.meshes import merge_vertices
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0.5]], float)
+    bowtie = np.array([[0, 1, 2], [0, 3, 4]])                     # two triangles that share vertex 0 only
+    faces, source = repair.split_fans(bowtie, len(v))
+    at = v[source]
+    moved = repair.separate_copies(at, faces, source, ratio=0.1)
+    copies = np.flatnonzero(source == 0)
+    assert len(copies) == 2
+    for c in copies:                                              # 10 % of the way to its own face's centroid
+        centroid = at[faces[(faces == c).any(1)][0]].mean(0)
+        np.testing.assert_allclose(moved[c], 0.9 * at[c] + 0.1 * centroid)
+    rest = np.setdiff1d(np.arange(len(source)), copies)
+    assert np.array_equal(moved[rest], at[rest])
+    # Merged by position (a file read back), the copies on one point make the pinch again; moved, they do not.
+    assert len(repair.nonmanifold_vertices(merge_vertices(at, faces)[1])) == 1
+    assert len(repair.nonmanifold_vertices(merge_vertices(moved, faces)[1])) == 0
+    assert np.array_equal(repair.separate_copies(v, bowtie, np.arange(len(v))), v)  # no copies: nothing moves
+    with pytest.raises(ValueError, match="ratio"):
+        repair.separate_copies(at, faces, source, ratio=1.0)
+
+
+def test_surface_keeps_the_two_sheet_faces_that_continue_each_other_at_a_branch():
+    """Three sheet faces on one edge: the extraction keeps the flattest pair, not three pieces split apart."""
+    from dmesh import wdt
+    from dmesh.extract import SurfaceConfig, surface
+
+    # A flat strip of two faces on edge 0-1 (z = 0) and a fin standing up from that edge.
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0.1, 1.0],
+                    [3, 3, 3], [-3, 3, -3], [3, -3, -3], [-3, -3, 3]], float)
+    pd = wdt.PowerDiagram.from_points(pts, None)
+    wanted = {(0, 1, 2), (0, 1, 3), (0, 1, 4)}
+    walls = np.array([tuple(sorted(f)) in wanted for f in pd.faces.tolist()])
+    assert walls.sum() == 3
+    out = surface(pd, walls, config=SurfaceConfig(max_crumb=0))
+    assert sorted(tuple(sorted(pd.points[out.vertices][f][:, 1].round(1).tolist())) for f in out.faces) == \
+        [(-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)]                       # the strip (y = 1 and y = -1 apexes) stays
+    assert out.info["branches_dropped"] == 1 and out.info["split_vertices"] == 0
+
+
 def test_an_orientable_sheet_turns_whole_whatever_its_vectors_say():
     """Directions towards cameras on a sheet seen from both sides point up on one half and down on the other:
     face by face they would split the sheet's winding. A sheet that can be wound consistently turns whole, to
