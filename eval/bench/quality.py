@@ -16,7 +16,9 @@ closest to the face centroid (closed GTs turned outward first, `datasets.meshes.
 the same with each open piece on whichever side agrees more (`eval.metrics.oriented_fractions`: the side of a
 sheet seen in two-sided images is a convention, its consistency is not); watertight (every edge has two
 faces); boundary edges; non-manifold edges (more than two faces) and vertices (more than one fan of faces);
-edges whose two faces run them the same way (inconsistent winding); CD p2s (`eval.metrics.chamfer_l1_p2s`,
+edges whose two faces run them the same way (inconsistent winding), all four counted with the vertices
+merged by position, as a file of the mesh reads back (a pinch split into copies on one point is still a
+pinch); CD p2s (`eval.metrics.chamfer_l1_p2s`,
 x1e-3, GT frame: vertex mean 0, max vertex norm 1); `surface_s`, the seconds of the surface step.
 """
 from __future__ import annotations
@@ -45,10 +47,12 @@ def _gt(name: str):
 
 
 def figures(mesh, gt) -> dict:
+    from datasets.meshes import merge_vertices
     from dmesh import repair
     from eval.metrics import chamfer_l1_p2s, oriented_fractions, topology
 
-    f = np.asarray(mesh.faces, np.int64)
+    # Topology as a file of the mesh reads back: vertices on one position merged (as `compute_metrics`).
+    v, f = merge_vertices(mesh.vertices, mesh.faces) if len(mesh.faces) else (mesh.vertices, np.zeros((0, 3), int))
     counts = repair.edge_table(f)[2]
     orient = oriented_fractions(mesh, gt)
     return {"faces": int(len(f)), "oriented": orient["oriented_fraction"],
@@ -56,7 +60,7 @@ def figures(mesh, gt) -> dict:
             "watertight": bool(len(f) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "nonmanifold_edges": int((counts > 2).sum()),
             "nonmanifold_vertices": int(len(repair.nonmanifold_vertices(f))),
-            "inconsistent_winding_edges": int(topology(mesh.vertices, f)["inconsistent_winding_edges"]),
+            "inconsistent_winding_edges": int(topology(v, f)["inconsistent_winding_edges"]),
             "cd_p2s_1e3": 1e3 * chamfer_l1_p2s(mesh, gt)}
 
 
