@@ -28,10 +28,11 @@ are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
 do not share an edge with the closed part, wound consistently and facing the input normals when given;
 where three or more sheet faces meet at an edge, the two that continue each other best stay
-(`dmesh.repair.keep_flattest`); where sheets (or a pinch the relabelling left) meet at a vertex, each gets
-its own copy of it, moved a little into its own faces (`dmesh.repair.separate_copies`), so that the surface
-no longer touches itself and a merge of vertices by position (STL, trimesh's default load) does not join
-the copies again. Where the input samples a closed surface the result is watertight and 2-manifold; the
+(`dmesh.repair.keep_flattest`; the sheets are wound as if that pair were apart, and a pair that then runs its
+edge the same way is a seam, cut open by dropping its smaller face: `dmesh.repair.seam_at`); where sheets
+(or a pinch the relabelling left) meet at a vertex, each gets its own copy of it, moved a little into its
+own faces (`dmesh.repair.separate_copies`), so that the surface no longer touches itself and a merge of
+vertices by position (STL, trimesh's default load) does not join the copies again. Where the input samples a closed surface the result is watertight and 2-manifold; the
 figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
 
 Multi-view filters (`filtered_faces`, `extract_filtered`; the interior rules of
@@ -182,7 +183,7 @@ class Surface:
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
             tets_flipped, closed_faces, holes_filled, hole_faces, holes_left, fins_dropped, branches_dropped,
-            crumbs_dropped,
+            crumbs_dropped, seams_cut,
             split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
     """
 
@@ -232,6 +233,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
             "regions_dropped": dropped, "sheets_set_aside": int(aside.sum()), "tets_flipped": flipped,
             "closed_faces": int(len(closed))}
     sheet = pd.faces[walls & ~between].astype(np.int64)
+    branch_faces, branch_edges = np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64)
     if cfg.clean:
         fill, filled, left = repair.fill_holes(points, closed, cfg.max_hole) if len(closed) else (closed, 0, 0)
         closed = np.concatenate([closed, fill])
@@ -239,16 +241,26 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         sheet = sheet[~fins]
         # Where three or more sheet faces meet at an edge, the two that continue each other best stay: a
         # split there (below) would only hide the branch, which a merge by position (STL, trimesh) restores.
+        branch_edges = repair.nonmanifold_edges(sheet)
         branches = ~repair.keep_flattest(points, sheet)
-        sheet = sheet[~branches]
+        branch_faces, sheet = sheet[branches], sheet[~branches]
         crumbs = repair.crumbs(sheet, cfg.max_crumb)
         if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
             crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]
         info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()),
                     branches_dropped=int(branches.sum()), crumbs_dropped=int(crumbs.sum()))
-    sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
-                                 turn_faces=cfg.turn_faces)
+    # The sheets are wound with the branch faces still in: the kept pair at a branch is then not joined for
+    # the winding (an edge of three faces joins none), so each sheet turns on its own, as it would without
+    # the pair; a pair whose two faces then run their edge the same way is a seam, cut open (the smaller face
+    # goes) rather than letting one sheet turn faces to match the other.
+    both = repair.orient_sheets(points, np.concatenate([sheet, branch_faces]), normals, k=cfg.neighbours,
+                                workers=cfg.workers, turn_faces=cfg.turn_faces)
+    sheet = both[:len(sheet)]
+    if cfg.clean:
+        seams = repair.seam_at(points, sheet, branch_edges)
+        sheet = sheet[~seams]
+        info["seams_cut"] = int(seams.sum())
     faces = np.concatenate([closed, sheet])
     vertices = np.arange(len(points))
     if cfg.clean:  # sheets meeting at a vertex get their own copies of it (`_surface_mesh` moves them apart)

@@ -81,10 +81,24 @@ def test_surface_keeps_the_two_sheet_faces_that_continue_each_other_at_a_branch(
     wanted = {(0, 1, 2), (0, 1, 3), (0, 1, 4)}
     walls = np.array([tuple(sorted(f)) in wanted for f in pd.faces.tolist()])
     assert walls.sum() == 3
-    out = surface(pd, walls, config=SurfaceConfig(max_crumb=0))
+    up = (np.array([[0.5, 0.3, 0.0], [0.5, -0.3, 0.0]]), np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]))
+    out = surface(pd, walls, up, config=SurfaceConfig(max_crumb=0))
     assert sorted(tuple(sorted(pd.points[out.vertices][f][:, 1].round(1).tolist())) for f in out.faces) == \
         [(-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)]                       # the strip (y = 1 and y = -1 apexes) stays
-    assert out.info["branches_dropped"] == 1 and out.info["split_vertices"] == 0
+    assert out.info["branches_dropped"] == 1 and out.info["split_vertices"] == 0 and out.info["seams_cut"] == 0
+    # Each half is wound on its own first; halves that face opposite ways would make the kept pair a seam,
+    # and then the smaller face goes rather than one half turning.
+    opposite = (up[0], np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]))
+    out = surface(pd, walls, opposite, config=SurfaceConfig(max_crumb=0))
+    assert len(out.faces) == 1 and out.info["seams_cut"] == 1
+
+
+def test_seam_at_cuts_the_smaller_face_of_an_inconsistent_listed_edge():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -0.5, 0]], float)
+    seam = np.array([[0, 1, 2], [0, 1, 3]])                       # both run 0 -> 1: inconsistent
+    assert repair.seam_at(v, seam, [[1, 0]]).tolist() == [False, True]
+    assert not repair.seam_at(v, seam, np.zeros((0, 2), int)).any()   # not a listed edge: kept
+    assert not repair.seam_at(v, np.array([[0, 1, 2], [1, 0, 3]]), [[0, 1]]).any()  # consistent: kept
 
 
 def test_an_orientable_sheet_turns_whole_whatever_its_vectors_say():
