@@ -374,3 +374,14 @@ def test_capture_size_levels_take_the_clean_level_from_a_clean_run_whatever_the_
     got = [r for r in robustness.robustness_rows(_df(path)) if r["corruption"] == "views"]
     assert [r["level"] for r in got] == [64, 16, 8]
     assert [r["setting"] for r in got] == ["clean", "views=16", "views=8"]
+
+
+def test_plot_panels_compare_methods_on_the_shapes_they_all_ran():
+    """A study on one shape beside a sweep on two: the panel compares both on the shared shape only."""
+    two = {"method": "depth", "level": 0.005, "cd_p2s": 2.0, "per_shape": {"torus": 1.0, "genus2": 3.0}}
+    one = {"method": "refine", "level": 0.005, "cd_p2s": 0.8, "per_shape": {"torus": 0.8}}
+    value, common = robustness.matched_values([two, one])
+    assert common == ["torus"] and value[id(two)] == 1.0 and value[id(one)] == 0.8
+    same = {"method": "tsdf", "level": 0.005, "cd_p2s": 5.0, "per_shape": {"torus": 4.0, "genus2": 6.0}}
+    value, common = robustness.matched_values([two, same])
+    assert common is None and value[id(two)] == 2.0 and value[id(same)] == 5.0   # same shapes: the means

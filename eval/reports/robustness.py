@@ -295,8 +295,31 @@ def plot_levels(rows: list[dict], name: str) -> list:
     return sorted({r["level"] for r in rows}, key=lambda v: (0, 0.0, "") if v in clean else _severity(name, v, None))
 
 
+def matched_values(rows: list[dict]) -> tuple[dict[int, float | None], list[str] | None]:
+    """CD p2s of one panel's rows (all methods of one class and corruption) over the same shapes.
+
+    A study may run on fewer shapes than the sweep beside it (one per class against two), and a mean over
+    other shapes is no comparison. When the methods' shape sets differ, each row's value is its mean over the
+    shapes every method of the panel ran (its `per_shape`); returns ({id(row): value}, those shapes), or the
+    rows' own means and None when the sets agree (or have no shape in common).
+    """
+    sets: dict[str, set] = {}
+    for r in rows:
+        sets.setdefault(r["method"], set()).update(r.get("per_shape") or {})
+    common = set.intersection(*sets.values()) if sets else set()
+    if not common or all(v == common for v in sets.values()):
+        return {id(r): r["cd_p2s"] for r in rows}, None
+    out = {}
+    for r in rows:
+        vals = [r["per_shape"][s] for s in common if s in (r.get("per_shape") or {})]
+        out[id(r)] = sum(vals) / len(vals) if vals else None
+    return out, sorted(common)
+
+
 def line_plots(rows: list[dict], kind: str, out: Path) -> Path | None:
-    """CD p2s (x1e-3, log) against level, one panel per class (rows) and corruption (columns)."""
+    """CD p2s (x1e-3, log) against level, one panel per class (rows) and corruption (columns); in a panel
+    whose methods ran on different shapes, over the shapes they all ran (`matched_values`, named in the
+    panel's title)."""
     rows = [r for r in rows if r["input"] == kind and r["corruption"] in FACTORS]
     if not rows:
         return None
@@ -312,16 +335,17 @@ def line_plots(rows: list[dict], kind: str, out: Path) -> Path | None:
             ax = axes[i, j]
             rs = [r for r in rows if r["category"] == cat and r["corruption"] == name]
             levels = plot_levels(rs, name)
+            value, common = matched_values(rs)
             for k, m in enumerate(methods):
-                pts = [(levels.index(r["level"]), r["cd_p2s"] * 1e3) for r in rs
-                       if r["method"] == m and r["cd_p2s"] is not None and r["cd_p2s"] > 0]
+                pts = [(levels.index(r["level"]), value[id(r)] * 1e3) for r in rs
+                       if r["method"] == m and value[id(r)] is not None and value[id(r)] > 0]
                 if pts:
                     ax.plot(*zip(*pts), marker="o", ms=3.5, lw=1.3, color=cmap(k % 10), label=m)
             ax.set_xticks(range(len(levels)), [_fmt_level(v) for v in levels], fontsize=7)
             ax.set_yscale("log")
             _plain_ticks(ax)
             ax.grid(alpha=0.3, which="both")
-            ax.set_title(f"{name} ({cat})", fontsize=9)
+            ax.set_title(f"{name} ({cat})" + (f"\n{', '.join(common)} only" if common else ""), fontsize=9)
             if j == 0:
                 ax.set_ylabel("CD p2s (x1e-3)", fontsize=8)
     handles, labels = axes[0, 0].get_legend_handles_labels()
@@ -494,7 +518,10 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                                   ("density", "input points", 1), ("n", "n", 1), ("faces", "faces", 1),
                                   ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("time_s", "time (s)", 1)])]
     if figs or renders:
-        out += ["", "## Figures", ""] + [f"- [{p.name}](figures/{p.name})" for p in figs]
+        out += ["", "## Figures", "", "Line plots: a panel whose methods ran on different shapes (a study on one shape "
+                "per class beside a sweep on two) compares them on the shapes all of them ran, named in its title; "
+                "the tables above keep every shape.", ""]
+        out += [f"- [{p.name}](figures/{p.name})" for p in figs]
         out += [f"- [{p.name}](figures/{p.name}): {t}" for t, p in renders]
     out += ["", "_Generated from the results store by `eval.reports.robustness`; do not edit by hand._", ""]
     return "\n".join(out)
