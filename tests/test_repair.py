@@ -69,10 +69,12 @@ def test_split_copies_move_apart_into_their_own_faces():
         repair.separate_copies(at, faces, source, ratio=1.0)
 
 
-def test_surface_keeps_the_two_sheet_faces_that_continue_each_other_at_a_branch():
-    """Three sheet faces on one edge: the extraction keeps the flattest pair, not three pieces split apart."""
+def test_surface_keeps_every_face_of_a_branch_and_moves_its_copies_apart():
+    """Three sheet faces on one edge: each keeps its face, with its own copies of the edge's vertices, moved
+    into it, so that read back with vertices merged by position the edge is not a branch."""
+    from datasets.meshes import merge_vertices
     from dmesh import wdt
-    from dmesh.extract import SurfaceConfig, surface
+    from dmesh.extract import SurfaceConfig, _surface_mesh
 
     # A flat strip of two faces on edge 0-1 (z = 0) and a fin standing up from that edge.
     pts = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0.1, 1.0],
@@ -81,24 +83,13 @@ def test_surface_keeps_the_two_sheet_faces_that_continue_each_other_at_a_branch(
     wanted = {(0, 1, 2), (0, 1, 3), (0, 1, 4)}
     walls = np.array([tuple(sorted(f)) in wanted for f in pd.faces.tolist()])
     assert walls.sum() == 3
-    up = (np.array([[0.5, 0.3, 0.0], [0.5, -0.3, 0.0]]), np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]))
-    out = surface(pd, walls, up, config=SurfaceConfig(max_crumb=0))
-    assert sorted(tuple(sorted(pd.points[out.vertices][f][:, 1].round(1).tolist())) for f in out.faces) == \
-        [(-1.0, 0.0, 0.0), (0.0, 0.0, 1.0)]                       # the strip (y = 1 and y = -1 apexes) stays
-    assert out.info["branches_dropped"] == 1 and out.info["split_vertices"] == 0 and out.info["seams_cut"] == 0
-    # Each half is wound on its own first; halves that face opposite ways would make the kept pair a seam,
-    # and then the smaller face goes rather than one half turning.
-    opposite = (up[0], np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]))
-    out = surface(pd, walls, opposite, config=SurfaceConfig(max_crumb=0))
-    assert len(out.faces) == 1 and out.info["seams_cut"] == 1
-
-
-def test_seam_at_cuts_the_smaller_face_of_an_inconsistent_listed_edge():
-    v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -0.5, 0]], float)
-    seam = np.array([[0, 1, 2], [0, 1, 3]])                       # both run 0 -> 1: inconsistent
-    assert repair.seam_at(v, seam, [[1, 0]]).tolist() == [False, True]
-    assert not repair.seam_at(v, seam, np.zeros((0, 2), int)).any()   # not a listed edge: kept
-    assert not repair.seam_at(v, np.array([[0, 1, 2], [1, 0, 3]]), [[0, 1]]).any()  # consistent: kept
+    mesh = _surface_mesh(pd, walls, None, SurfaceConfig(max_crumb=0))
+    assert len(mesh.faces) == 3 and mesh.metadata["surface"]["split_vertices"] == 4   # 2 more copies of 0 and 1
+    merged = merge_vertices(mesh.vertices, mesh.faces)[1]
+    assert len(repair.nonmanifold_edges(merged)) == 0 and len(repair.nonmanifold_vertices(merged)) == 0
+    # Only the copies moved, each by 5 % of the way to its face's centroid (far less than an edge).
+    moved = np.linalg.norm(mesh.vertices - pts[np.argmin(((mesh.vertices[:, None] - pts) ** 2).sum(2), 1)], axis=1)
+    assert (moved[moved > 0] < 0.05).all() and (moved > 0).sum() == 6
 
 
 def test_an_orientable_sheet_turns_whole_whatever_its_vectors_say():
