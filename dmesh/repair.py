@@ -130,7 +130,7 @@ COPY_SEPARATION = 0.05
 def separate_copies(vertices: np.ndarray, faces: np.ndarray, source: np.ndarray,
                     ratio: float = COPY_SEPARATION) -> np.ndarray:
     """(V, 3) float64 positions in which every vertex that shares its source point with another vertex (the
-    copies `split_fans` makes where sheets meet at a vertex) is moved `ratio` of the way towards the mean
+    copies `split_fans` makes where sheets meet at an edge or a vertex) is moved `ratio` of the way towards the mean
     centroid of its own faces; the other vertices are returned as they are.
 
     Split copies on one position leave the surface touching itself there, and any merge of vertices by
