@@ -79,6 +79,27 @@ class UnsignedDistanceMC(Method):
                 verts[used] -= f[:, None] * n
                 info["single_sheet"] = True
         with sw.stage("assemble"):
+            verts, faces = _weld(verts, faces)
             mesh = trimesh.Trimesh(verts, faces, process=False)
-            mesh.remove_unreferenced_vertices()
         return mesh, info
+
+
+def _weld(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices on one point and drop the faces that leaves degenerate or repeated.
+
+    The projection onto the tangent planes sends marching-cubes vertices of the same grid line to one point
+    where both crossings of the tube were kept (near a sheet's rim, or where two parts meet). Left as
+    separate ids they hide the branches and pinches there from a topology count by id, while any reader that
+    merges by position (trimesh's default load, STL, `dmesh metrics`) sees them; welded, the file and its
+    figures agree.
+    """
+    from datasets.meshes import merge_vertices
+
+    if not len(faces):
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    v, f = merge_vertices(verts, faces)
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    f = f[np.sort(first)]
+    used, f = np.unique(f, return_inverse=True)
+    return v[used], f.reshape(-1, 3)

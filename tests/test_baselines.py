@@ -92,6 +92,27 @@ def test_udf_single_sheet_beats_double_shell(torus, cloud):
     no_normals = Inputs(points=cloud.points, normals=None)
     assert not method.reconstruct(no_normals, {"resolution": 48}).info["single_sheet"]
 
+def test_udf_single_sheet_has_no_two_vertices_on_one_point():
+    """Where a sheet meets a box, the projection sends both tube crossings of a grid line to one point; the
+    output must weld them, so its topology by vertex id is what a reader merging by position sees."""
+    from datasets.meshes import merge_vertices
+    from datasets.normalize import normalize
+    from datasets.sampling import sample_points
+    from datasets.synthetic import generate
+    from eval.metrics import topology
+
+    gt = normalize(generate("flag_box"), radius=1.0)[0]
+    pts, nrm = sample_points(gt, 8000, 0)
+    mesh = get_method("udf_mc").reconstruct(Inputs(points=pts, normals=nrm), {"resolution": 96}).mesh
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    assert len(np.unique(f)) == len(v)
+    assert len(np.unique(v, axis=0)) == len(v)
+    assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f)
+    by_id, by_position = topology(v, f), topology(*merge_vertices(v, f))
+    for key in ("non_manifold_edges", "non_manifold_vertices", "boundary_edges", "components"):
+        assert by_id[key] == by_position[key], key
+
+
 
 # --------------------------------------------------------------------------------------------- TSDF
 
