@@ -6,7 +6,8 @@ Flow of `run_sweep(sweep, work, ...)`:
    loaded or generated, classified (closed / open / mixed) and normalised (vertex mean at the origin, max
    vertex norm `sweep.radius`), then written as `gt.ply` beside `meta.json`.
 2. Expand the sweep into runs (`eval.sweep.expand`) and skip every run whose key is `done` (or `failed`,
-   unless `retry_failed`). Runs left `running` by a killed process are redone.
+   unless `retry_failed`), unless `rerun` asks for stored runs again (all, or those scored by an earlier
+   metric code). Runs left `running` by a killed process are redone.
 3. Prepare the inputs of the pending runs once per (shape, input kind, seed), cached beside the GT:
    `pc_n<N>_s<seed>.npz` holds `points` (N, 3) float32 and `normals` (N, 3) float32 (area-uniform samples
    of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).
@@ -67,6 +68,9 @@ from eval.sweep import RunSpec, ShapeRef, Sweep, build_config, expand, get_metho
 log = logging.getLogger(__name__)
 
 EXECUTORS = ("local", "ray")
+#: What a sweep runs again of the runs already stored done (`RunnerConfig.rerun`): nothing, all, or those scored
+#: by an earlier metric code.
+RERUN_MODES = (None, "all", "stale-metrics")
 
 
 @dataclass(frozen=True)
@@ -78,6 +82,7 @@ class RunnerConfig:
     jobs: int = 1                  # concurrent runs (worker processes or Ray tasks)
     executor: str = "local"        # local (process pool) or ray
     retry_failed: bool = False     # rerun runs stored as failed
+    rerun: str | None = None       # also rerun done runs: "all", or "stale-metrics" (scored by older metrics)
     lease_s: float = LEASE_S       # a run whose holder sent no heartbeat for this many seconds is taken over
     ray_address: str | None = None  # ray executor: cluster to join; None: $RAY_ADDRESS, else a local Ray
     threads: int | None = None     # local executor: threads per run; None: the machine's cores / jobs
@@ -89,6 +94,8 @@ class RunnerConfig:
             raise ValueError(f"RunnerConfig.threads: expected a positive integer or None, got {self.threads!r}")
         if not isinstance(self.lease_s, (int, float)) or not self.lease_s > 0:
             raise ValueError(f"RunnerConfig.lease_s: expected a positive number of seconds, got {self.lease_s!r}")
+        if self.rerun not in RERUN_MODES:
+            raise ValueError(f"RunnerConfig.rerun: expected one of {RERUN_MODES}, got {self.rerun!r}")
         if self.executor not in EXECUTORS:
             raise ValueError(f"RunnerConfig.executor: expected one of {EXECUTORS}, got {self.executor!r}")
         if self.ray_address and self.executor != "ray":
@@ -648,10 +655,30 @@ class SweepPlan:
                 for label, (pending, known, seconds) in rows]
 
 
-def _stored(row: dict | None, retry_failed: bool) -> bool:
-    """Whether a sweep skips the run whose store row is `row`: done, or failed unless failures are retried."""
+def _stored(row: dict | None, runner: RunnerConfig, metrics_now: str | None = None) -> bool:
+    """Whether a sweep skips the run whose store row is `row`: done (unless `runner.rerun` asks for it again),
+    or failed (unless failures are retried, or `rerun` is "all").
+
+    `rerun="stale-metrics"` reruns the done runs scored by another metric code than `metrics_now` (the
+    current `metrics_version`): what `dmesh rescore` cannot reach when a run's mesh is not on disk.
+    """
     status = None if row is None else row["status"]
-    return status == "done" or (status == "failed" and not retry_failed)
+    if status == "failed":
+        return not (runner.retry_failed or runner.rerun == "all")
+    if status != "done":
+        return False
+    if runner.rerun == "all":
+        return False
+    if runner.rerun == "stale-metrics":
+        return (row.get("metrics_json") or {}).get("metrics_version") == metrics_now
+    return True
+
+
+def _metrics_now(runner: RunnerConfig) -> str | None:
+    """The current metrics version when `runner` reruns runs by it, else None (not computed)."""
+    from eval.sweep import metrics_version
+
+    return metrics_version() if runner.rerun == "stale-metrics" else None
 
 
 def _wall_s(row: dict) -> float | None:
@@ -685,8 +712,9 @@ def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
                                 row["inputs_json"], int(row["seed"])], sort_keys=True, default=str)
             if ident not in walls or row["started_at"] > walls[ident][0]:
                 walls[ident] = (row["started_at"], wall)
+        metrics_now = _metrics_now(runner)
         for spec in runs:
-            if _stored(store.get(spec.key), runner.retry_failed):
+            if _stored(store.get(spec.key), runner, metrics_now):
                 plan.stored += 1
                 continue
             plan.pending += 1
@@ -726,13 +754,14 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
     lease = Lease.new()
     with Store(runner.db_path) as store:
         pending, retry_attempts = [], {}
+        metrics_now = _metrics_now(runner)
         for spec in runs:
             row = store.get(spec.key)
-            if _stored(row, runner.retry_failed):
+            if _stored(row, runner, metrics_now):
                 summary.skipped += 1
                 continue
-            if row is not None and row["status"] == "failed":  # retried only if no other sweep retries it first
-                retry_attempts[spec.key] = row["attempts"]
+            if row is not None and row["status"] in ("done", "failed"):  # run again only if no other sweep
+                retry_attempts[spec.key] = row["attempts"]                # does it first
             pending.append(spec)
         log.info("sweep %s: %d runs, %d already stored, %d to run", sweep.name, len(runs), summary.skipped,
                  len(pending))

@@ -268,9 +268,10 @@ class Store:
             row: the run's identity columns (key, method, shape, ...); used when the run is new.
             lease: the claiming sweep.
             stale_s: a lease whose heartbeat is older than this many seconds is taken over.
-            retry_attempts: reclaim a `failed` row, but only if its `attempts` still equals this value (the
-                value the caller saw when it decided to retry), so that a failure another sweep stored
-                meanwhile is not retried twice. None: a failed row stays failed.
+            retry_attempts: reclaim a finished row (`failed`, or `done` for a sweep that reruns stored runs),
+                but only if its `attempts` still equals this value (the value the caller saw when it decided to
+                run it again), so that an outcome another sweep stored meanwhile is not run twice. None: a
+                finished row stays as it is.
 
         Returns:
             "claimed" (new or retried run, now `running` under `lease`), "resumed" (a `running` row whose
@@ -304,8 +305,9 @@ class Store:
                 n = self._conn.execute(
                     f"UPDATE runs SET status='running', started_at=:started, {cleared}, lease_pid=:lease_pid, "
                     "lease_host=:lease_host, lease_token=:lease_token, heartbeat_at=:heartbeat_at, "
-                    "attempts=attempts+1 WHERE key=:key AND status!='done'",
-                    {**lease_cols, "started": started, "key": key}).rowcount
+                    "attempts=attempts+1 WHERE key=:key AND (status!='done' OR attempts=:again)",
+                    {**lease_cols, "started": started, "key": key,
+                     "again": -1 if retry_attempts is None else retry_attempts}).rowcount
                 if n != 1:  # cannot happen under the lock; the guard is what keeps done rows done
                     return "done"
         return outcome
@@ -318,10 +320,9 @@ class Store:
     def _claim_outcome(cur, lease: Lease, stale_s: float, retry_attempts: int | None) -> str:
         if cur is None:
             return "claimed"
-        if cur["status"] == "done":
-            return "done"
-        if cur["status"] == "failed":
-            return "claimed" if retry_attempts is not None and cur["attempts"] == retry_attempts else "failed"
+        if cur["status"] in ("done", "failed"):
+            again = retry_attempts is not None and cur["attempts"] == retry_attempts
+            return "claimed" if again else cur["status"]
         if cur["lease_token"] == lease.token:
             return "claimed"  # already ours
         return "held" if lease_live(cur, lease, stale_s) else "resumed"

@@ -420,3 +420,37 @@ def test_checks_list_runs_that_lost_accuracy_after_their_last_step(tmp_path):
     assert "| 2.00 |" in md
     assert list(csv.DictReader((out / "checks.csv").open()))[0]["key"] == "bad"
     assert "checks.md" in (out / "index.html").read_text()
+
+
+def test_provenance_counts_runs_of_earlier_code_and_earlier_metrics(tmp_path):
+    """Per table row: finished runs, those whose code version is not the method's now, and the done runs whose
+    metrics version is not the metric code's now (or missing); the Table 2 Markdown carries the section."""
+    from eval.reports.provenance import provenance_rows
+    from eval.sweep import code_version, get_method, metrics_version
+
+    code, metrics = code_version(get_method("psr")), metrics_version()
+    rows = [
+        _row("a", "psr", "torus", "closed", "done", 1e-3, 2e-3, 1.0,
+             metrics={"cd_p2s": 1e-3, "metrics_version": metrics}),
+        _row("b", "psr", "bowl", "open", "done", 1e-3, 2e-3, 1.0, metrics={"cd_p2s": 1e-3, "metrics_version": "old"}),
+        _row("c", "psr", "plant", "mixed", "done", 1e-3, 2e-3, 1.0, metrics={"cd_p2s": 1e-3}),
+        _row("d", "psr", "genus2", "closed", "failed", error="boom"),
+        _row("e", "psr", "trefoil", "closed", "running"),
+        _row("f", "tsdf", "torus", "closed", "done", 1e-3, 2e-3, 1.0, kind="multiview"),
+    ]
+    for r in rows[:4]:
+        r["code_version"] = code
+    path = tmp_path / "results.sqlite"
+    with Store(path) as s:
+        for r in rows:
+            s.upsert(r)
+        df = s.dataframe()
+    got = provenance_rows(df, "pointcloud")
+    assert got == [{"method": "psr", "runs": 4, "earlier_code": 0, "earlier_metrics": 2}]
+    df.loc[df["key"] == "a", "code_version"] = "0+src.old"
+    assert provenance_rows(df, "pointcloud")[0]["earlier_code"] == 1
+    assert provenance_rows(df, "multiview") == [{"method": "tsdf", "runs": 1, "earlier_code": 1,
+                                                  "earlier_metrics": 1}]
+    md, _ = tables.write_table2(df, tmp_path / "rep", "pointcloud")
+    text = md.read_text()
+    assert "## Provenance" in text and "| psr | 4 | 1 | 2 |" in text

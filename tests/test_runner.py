@@ -499,6 +499,37 @@ def test_rescore_recomputes_old_metrics_from_the_stored_mesh(fake, tmp_path, cap
     assert "0 runs to score, 2 already scored by it" in capsys.readouterr().out
 
 
+
+def test_rerun_redoes_stored_runs_all_or_those_scored_by_older_metrics(fake, tmp_path):
+    """`rerun="stale-metrics"` runs again only the done runs whose metrics came from another metric code (a run
+    whose mesh is gone cannot be rescored), `rerun="all"` every stored run, failed ones included; the new result
+    replaces the old one under the same key."""
+    from eval.runner import RunnerConfig, run_sweep
+
+    counter = tmp_path / "calls.txt"
+    sweep = small_sweep(seeds=(0, 1), configs={"fake_hull": [{"counter": str(counter)}]})
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    run_sweep(sweep, runner)
+    with Store(runner.db_path) as store:
+        rows = store.rows()
+        store.set_metrics(rows[0]["key"], {**rows[0]["metrics_json"], "cd_p2s": 9.0, "metrics_version": "0" * 16})
+    stale = RunnerConfig(work=str(tmp_path / "work"), rerun="stale-metrics")
+    s = run_sweep(sweep, stale)
+    assert (s.done, s.skipped) == (1, 1) and counter.read_text().split() == ["0", "1", str(rows[0]["seed"])]
+    with Store(runner.db_path) as store:
+        again = store.get(rows[0]["key"])
+    assert again["status"] == "done" and again["metrics_json"]["cd_p2s"] == rows[0]["metrics_json"]["cd_p2s"]
+    assert again["attempts"] == rows[0]["attempts"] + 1
+    assert run_sweep(sweep, stale).skipped == 2  # now scored by the current metrics
+    s = run_sweep(sweep, RunnerConfig(work=str(tmp_path / "work"), rerun="all"))
+    assert (s.done, s.skipped) == (2, 0) and len(counter.read_text().split()) == 5
+    failing = small_sweep(methods=("fake_fail",))
+    run_sweep(failing, runner)
+    assert run_sweep(failing, RunnerConfig(work=str(tmp_path / "work"), rerun="all")).failed == 1
+    with pytest.raises(ValueError, match="rerun"):
+        RunnerConfig(work=str(tmp_path), rerun="everything")
+
+
 # --------------------------------------------------------------------------------------------------- bad input
 
 def run_cli(*args, cwd=REPO):

@@ -148,6 +148,25 @@ def test_done_row_stays_done_whatever_tries_to_claim_it(tmp_path):
             s.finish("missing", status="done")
 
 
+
+def test_a_done_row_is_claimed_again_only_by_a_rerun_that_saw_its_attempts(tmp_path):
+    """A sweep that reruns stored runs passes the `attempts` it saw: the row is claimed once; a second sweep
+    that saw the same count finds it running (or done again), not claimable."""
+    db = tmp_path / "results.sqlite"
+    mine = Lease.new()
+    with Store(db) as s:
+        s.claim(_row("k"), mine)
+        s.finish("k", status="done", metrics={"cd_p2s": 1e-3}, timings={"total": 1.0}, lease=mine)
+        seen = s.get("k")["attempts"]
+        first, second = Lease(pid=os.getppid(), host=socket.gethostname(), token="first"), Lease.new()
+        assert s.claim(_row("k"), first, retry_attempts=seen + 1) == "done"
+        assert s.claim(_row("k"), first, retry_attempts=seen) == "claimed"
+        assert s.get("k")["status"] == "running" and s.get("k")["metrics_json"] is None
+        assert s.claim(_row("k"), second, retry_attempts=seen) == "held"
+        assert s.finish("k", status="done", metrics={"cd_p2s": 2e-3}, timings={"total": 1.0}, lease=first)
+        assert s.claim(_row("k"), second, retry_attempts=seen) == "done"
+        assert s.get("k")["metrics_json"] == {"cd_p2s": 2e-3} and s.get("k")["attempts"] == seen + 1
+
 def test_a_live_lease_keeps_others_out_until_it_finishes(tmp_path):
     holder, other = Lease(pid=os.getppid(), host=socket.gethostname(), token="holder"), Lease.new()
     with Store(tmp_path / "s.sqlite") as s:

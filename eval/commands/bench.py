@@ -36,6 +36,10 @@ def add_sweep_arguments(p: argparse.ArgumentParser, work_default: str) -> None:
                         "one started on this machine); default: $RAY_ADDRESS, else a local Ray of --jobs CPUs")
     p.add_argument("--timeout", type=float, help="per-run wall-clock limit in seconds (default: the sweep's)")
     p.add_argument("--retry-failed", action="store_true", help="rerun runs stored as failed")
+    p.add_argument("--rerun", choices=("all", "stale-metrics"),
+                   help="also rerun stored runs of the selection: all of them, or the done ones scored by an "
+                        "earlier metric code (for runs without their mesh on disk, which `dmesh rescore` "
+                        "cannot reach); a rerun replaces the stored result")
     p.add_argument("--plan", action="store_true",
                    help="run nothing: print the runs stored and to run, and how long the stored runs of the same "
                         "configurations (any code version) took")
@@ -144,7 +148,8 @@ def run(args) -> int:
 
     sweep = build_sweep(args)
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
-                          retry_failed=args.retry_failed, ray_address=args.ray_address, threads=args.threads)
+                          retry_failed=args.retry_failed, ray_address=args.ray_address, threads=args.threads,
+                          rerun=args.rerun)
     check_work(args.work, runner.db_path)
     if args.plan:
         return print_plans([sweep], runner)

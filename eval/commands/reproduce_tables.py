@@ -117,7 +117,8 @@ def run(args) -> int:
     if not sweeps:
         raise ValueError("no sweep has runs: check --methods / --inputs and the registered methods")
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
-                          retry_failed=args.retry_failed, ray_address=args.ray_address)
+                          retry_failed=args.retry_failed, ray_address=args.ray_address,
+                          rerun=args.rerun)
     check_work(args.work, runner.db_path)
     if args.plan:
         from eval.commands.bench import print_plans

@@ -58,7 +58,8 @@ def run(args) -> int:
     args.work = args.work or ("runs/robustness_quick" if args.quick else "runs/paper")
     check_output_dir(out, "-o")
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
-                          retry_failed=args.retry_failed, ray_address=args.ray_address)
+                          retry_failed=args.retry_failed, ray_address=args.ray_address,
+                          rerun=args.rerun)
     check_work(args.work, runner.db_path)
     keys = None
     if not args.report_only:

@@ -475,7 +475,8 @@ NOISE_COLUMNS = [("input", "input", None), ("corruption", "corruption", None), (
                  ("smoothed", "smoothed", None)]
 
 
-def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]], noise=()) -> str:
+def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]], noise=(),
+              provenance=()) -> str:
     from eval.reports.tables import FRAME_NOTE, markdown
 
     cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
@@ -517,6 +518,10 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                                   ("category", "class", None), ("config", "config", None),
                                   ("density", "input points", 1), ("n", "n", 1), ("faces", "faces", 1),
                                   ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("time_s", "time (s)", 1)])]
+    if provenance:
+        from eval.reports.provenance import provenance_markdown
+
+        out += provenance_markdown(list(provenance))
     if figs or renders:
         out += ["", "## Figures", "", "Line plots: a panel whose methods ran on different shapes (a study on one shape "
                 "per class beside a sweep on two) compares them on the shapes all of them ran, named in its title; "
@@ -525,6 +530,17 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
         out += [f"- [{p.name}](figures/{p.name}): {t}" for t, p in renders]
     out += ["", "_Generated from the results store by `eval.reports.robustness`; do not edit by hand._", ""]
     return "\n".join(out)
+
+
+def _provenance(df) -> list[dict]:
+    """`eval.reports.provenance` rows of the robustness runs in `df`, named by input kind and method."""
+    from eval.reports.provenance import provenance_rows
+    from eval.reports.tables import method_label
+
+    if df is None or not len(df):
+        return []
+    return provenance_rows(df[is_robustness(df)],
+                           label=lambda r: f"{r['input_kind']}: {method_label(r['method'], r['config_label'])}")
 
 
 def write_robustness(df, out: str | Path, db: str | Path | None = None, work: str | Path | None = None,
@@ -546,7 +562,7 @@ def write_robustness(df, out: str | Path, db: str | Path | None = None, work: st
              budget_plot(budget, kind, figdir / f"robustness_budget_{kind}.png")) if p is not None]
     scans = scan_renders(df, Path(db), Path(work or Path(db).parent), figdir) if renders and db else []
     md, csv, bcsv = out / "robustness.md", out / "robustness.csv", out / "robustness_budget.csv"
-    write_text(md, _markdown(rows, budget, ratios, figs, scans, noise_rows(df)))
+    write_text(md, _markdown(rows, budget, ratios, figs, scans, noise_rows(df), _provenance(df)))
     write_text(csv, to_csv([{**r, "level": _fmt_level(r["level"])} for r in rows], CSV_COLUMNS))
     write_text(bcsv, to_csv(budget, BUDGET_COLUMNS))
     body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV</a> "

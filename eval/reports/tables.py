@@ -316,7 +316,7 @@ TABLE2_CSV_COLUMNS = ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "t
 
 
 def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_samples: int | None,
-                    title: str | None = None) -> str:
+                    title: str | None = None, provenance: list[dict] | None = None) -> str:
     label = {"pointcloud": "point cloud", "multiview": "multi-view"}.get(input_kind, input_kind)
     cols = [("method", "method", None), ("category", "class", None), ("n", "n", 1), ("failed", "failed", 1),
             ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
@@ -339,6 +339,10 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
                          + QUALITY_SUMMARY_COLUMNS)]
     else:
         out.append(f"_No {label} runs in the store yet._\n")
+    if provenance:
+        from eval.reports.provenance import provenance_markdown
+
+        out += provenance_markdown(provenance)
     paper = paper_numbers.TABLE2.get(input_kind)
     if paper:
         prow = [{"method": m, **v} for m, v in paper.items()]
@@ -369,7 +373,10 @@ def write_table2(df, out: str | Path, input_kind: str, n_samples: int | None = N
     out = Path(out)
     rows = table2(df, input_kind)
     md_path, csv_path = out / f"table2_{input_kind}.md", out / f"table2_{input_kind}.csv"
-    write_text(md_path, table2_markdown(rows, input_kind, per_shape(df, input_kind), n_samples))
+    from eval.reports.provenance import provenance_rows
+
+    write_text(md_path, table2_markdown(rows, input_kind, per_shape(df, input_kind), n_samples,
+                                        provenance=provenance_rows(df, input_kind)))
     write_text(csv_path, to_csv(rows, TABLE2_CSV_COLUMNS))
     return md_path, csv_path
 
@@ -404,15 +411,23 @@ def table1(df) -> list[dict]:
     return sorted(rows, key=lambda x: (x["shape"], x["method"]))
 
 
+def _table1_runs(df):
+    """The done runs of `df` in Table 1 (those with RE / FP); None for an empty `df`."""
+    if df is None or len(df) == 0:
+        return None
+    done = df[df["status"] == "done"]
+    if not len(done):
+        return done
+    return done[done.apply(lambda r: any(num(r.get(n)) is not None for n in _RE_NAMES), axis=1)]
+
+
 def _table1_quality(df) -> list[dict]:
     """`quality_row` of each done run in Table 1 (those with RE / FP), in Table 1's order."""
-    if df is None or len(df) == 0:
+    runs = _table1_runs(df)
+    if runs is None:
         return []
-    rows = []
-    for _, r in df[df["status"] == "done"].iterrows():
-        if any(num(r.get(n)) is not None for n in _RE_NAMES):
-            rows.append({"shape": r["shape"], "method": method_label(r["method"], r["config_label"]),
-                         **quality_row(r)})
+    rows = [{"shape": r["shape"], "method": method_label(r["method"], r["config_label"]), **quality_row(r)}
+            for _, r in runs.iterrows()]
     return sorted(rows, key=lambda x: (x["shape"], x["method"]))
 
 
@@ -435,6 +450,9 @@ def write_table1(df, out: str | Path) -> tuple[Path, Path]:
     if quality:
         md += ["", "## Mesh quality", "", QUALITY_NOTE, "",
                markdown(quality, [("shape", "shape", None), ("method", "method", None)] + QUALITY_RUN_COLUMNS)]
+    from eval.reports.provenance import provenance_markdown, provenance_rows
+
+    md += provenance_markdown(provenance_rows(_table1_runs(df)))
     prow = [{"shape": k, **v} for k, v in paper_numbers.TABLE1.items()]
     md += ["", "## Published: the paper's Table 1 (20K steps, Stanford models)", "",
            markdown(prow, [("shape", "model", None), ("RE", "RE (%)", 100, ".2f"), ("FP", "FP (%)", 100, ".2f")]),

@@ -1,0 +1,64 @@
+"""Which code made and scored the runs a table shows.
+
+A report shows each run's latest result (`eval.reports.select_runs`), whatever code made it: a method edited
+since its runs keeps them in the tables until they are run again, and a metric edited since a run was scored
+keeps that run's old figures until `dmesh rescore` recomputes them (which needs the mesh on disk). Both are
+visible here, per table row, so a table never mixes two versions of the code silently:
+
+    earlier code       runs whose `code_version` is not the method's sources' now (`eval.sweep.code_version`)
+    earlier metrics    done runs whose `metrics_version` is not the metric code's now (or that carry none)
+"""
+from __future__ import annotations
+
+from eval.reports.tables import display_name, markdown, method_label
+
+PROVENANCE_NOTE = (
+    "Which code made and scored the runs of each row. *earlier code*: runs made by an earlier version of the "
+    "method's sources (the code version hashes the method's module closure; `dmesh bench` runs the current "
+    "code under a new key and the table then shows the new run). *earlier metrics*: done runs scored by an "
+    "earlier `eval.metrics` (their figures may be counted another way; `dmesh rescore --work W` recomputes "
+    "those whose mesh is on disk). Zero in both: the row is the current code's.")
+
+
+def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]:
+    """One row per method and config of `df` (a `select_runs` selection; only `input_kind`'s runs when
+    given): finished runs, those made by earlier code, the done runs scored by earlier metrics.
+
+    `label(r)` names a row (default: the method and its config label, as Table 2 shows them).
+    """
+    from eval.reports.recipes import current_code_version
+    from eval.sweep import metrics_version
+
+    if df is None or not len(df):
+        return []
+    sub = df[df["status"].isin(["done", "failed"])]
+    if input_kind is not None:
+        sub = sub[sub["input_kind"] == input_kind]
+    if not len(sub):
+        return []
+    metrics_now = metrics_version()
+    code_now = {m: current_code_version(m) for m in set(sub["method"])}
+    rows: dict[str, dict] = {}
+    for _, r in sub.iterrows():
+        name = label(r) if label else method_label(display_name(r["method"], r["input_kind"]), r["config_label"])
+        row = rows.setdefault(name, {"method": name, "runs": 0, "earlier_code": 0, "earlier_metrics": 0})
+        row["runs"] += 1
+        now = code_now[r["method"]]
+        if now is not None and r.get("code_version") != now:
+            row["earlier_code"] += 1
+        version = r.get("metrics_version")
+        if r["status"] == "done" and (not isinstance(version, str) or version != metrics_now):
+            row["earlier_metrics"] += 1
+    return sorted(rows.values(), key=lambda x: x["method"])
+
+
+def provenance_markdown(rows: list[dict]) -> list[str]:
+    """The "Provenance" section of a report, as lines ([] without rows)."""
+    if not rows:
+        return []
+    return ["", "## Provenance", "", PROVENANCE_NOTE, "",
+            markdown(rows, [("method", "method", None), ("runs", "runs", 1), ("earlier_code", "earlier code", 1),
+                            ("earlier_metrics", "earlier metrics", 1)])]
+
+
+__all__ = ["provenance_rows", "provenance_markdown", "PROVENANCE_NOTE"]
