@@ -4,7 +4,8 @@ A run's key hashes its method's code and its inputs, not the metrics (`eval.swee
 corrected metric reruns no method. Each run's metrics carry the `metrics_version` that computed them; this
 command recomputes, for every done run whose mesh and GT are on disk, the metrics of an older version (or of
 every run, with --all) and stores them in place. Runs without their mesh (loaded from a store export on
-another machine) keep their metrics and are counted; a run that fails to score is reported and skipped.
+another machine) keep their metrics and are counted (`dmesh bench --rerun stale-metrics` runs them again); a
+run that fails to score is reported and skipped.
 """
 from __future__ import annotations
 
@@ -66,7 +67,8 @@ def run(args) -> int:
                 continue
             todo.append((row, mesh, gt))
         print(f"metrics version {current}: {len(todo)} runs to score, {scored} already scored by it, "
-              f"{no_mesh} without their mesh or GT on disk (kept as they are)")
+              f"{no_mesh} without their mesh or GT on disk (kept as they are"
+              + ("; `dmesh bench SWEEP --rerun stale-metrics` runs them again)" if no_mesh else ")"))
         if args.plan:
             return 0
         failed = 0
