@@ -124,6 +124,13 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
             if recipes:
                 body.append("<h3>DMesh recipes</h3>" + table_html(
                     recipes, [("method", "row", None), ("kind", "made by", None), ("recipe", "recipe", None)]))
+            from eval.reports.provenance import PROVENANCE_NOTE, provenance_rows
+
+            origin = provenance_rows(df, kind)
+            if any(r["earlier_code"] or r["earlier_metrics"] for r in origin):
+                body.append("<h3>Provenance</h3>" + f"<p class='note'>{_html.escape(PROVENANCE_NOTE)}</p>" + table_html(
+                    origin, [("method", "method", None), ("runs", "runs", 1), ("earlier_code", "earlier code", 1),
+                             ("earlier_metrics", "earlier metrics", 1)]))
             failures = sub[sub["status"] == "failed"] if len(sub) else sub
             if len(failures):
                 frows = [{"method": tables.method_label(r["method"], r["config_label"]), "shape": r["shape"],
