@@ -22,6 +22,9 @@ DEFAULT_PRESET = "fast"
 POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "tiny")
 #: Neighbours of the input smoothing of the `noisy` preset, and of `fast`'s when its input looks noisy.
 NOISY_SMOOTH_K = 120
+#: Real seeds of the `fast` preset: every point of a cloud up to this size (a random subset of a larger one).
+#: CD p2s falls about as 1 / seeds (docs/preset_choices.md), and the time stays well under a minute per shape.
+FAST_SEEDS = 100_000
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
 
@@ -188,15 +191,16 @@ class PointCloudConfig(Presets):
     @classmethod
     def fast(cls, **overrides) -> "PointCloudConfig":
         """A CPU budget, about a minute per shape on 2 cores: stray input points dropped (`outlier_std` 2, a
-        statistical test that keeps sparse stretches of surface), 40K seeds and their poles (about 90K points;
-        `dmesh.recon.init`) instead of 10K seeds and all their Voronoi vertices, faces far from the input
+        statistical test that keeps sparse stretches of surface), up to 100K seeds (every input point of a
+        Table 2 cloud) and their poles (`dmesh.recon.init`) instead of 10K seeds and all their Voronoi
+        vertices, faces far from the input
         carved (`carve_far_faces`, for holes and open borders), no phase-1 step, 10 phase-2 steps on 50K
         target points and samples, one-sheet extraction (`dmesh.extract`). An input that looks noisy
         (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`); clean
         input is not. Why each choice: docs/preset_choices.md; why no phase-1 step: `python -m eval.bench
         recipes`."""
-        base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=40_000, voronoi="poles", carve=5.0,
-                    max_voronoi=None,
+        base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=FAST_SEEDS, voronoi="poles",
+                    carve=5.0, max_voronoi=None,
                     num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16,
                     lambda_weight=0.0, real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
         return cls(**{**base, **overrides})
@@ -240,10 +244,11 @@ POINTCLOUD_RECIPES = {
                     "component; phase 2 ends once the mesh has not changed for 50 steps (upstream: all 500); "
                     "CPU kernels."),
     "fast": (False, "an initialisation, no phase-1 step: stray input points dropped and, when the input looks "
-                    "noisy, the rest smoothed as `noisy` does (both not upstream), 40K seeds + their poles (not all "
-                    "Voronoi vertices), faces far from the input carved, then 10 phase-2 steps (reals only) on 50K "
-                    "target points and samples, K <= 16, one-sheet extraction. Differs: no position or weight "
-                    "optimisation, 4x the seeds, 10 of the paper's 1500 steps."),
+                    "noisy, the rest smoothed as `noisy` does (both not upstream), up to 100K seeds (every point of a "
+                    "100K-point cloud) + their poles (not all Voronoi vertices), faces far from the input carved, "
+                    "then 10 phase-2 steps (reals only) on 50K target points and samples, K <= 16, one-sheet "
+                    "extraction. Differs: no position or weight optimisation, 10x the seeds, 10 of the paper's "
+                    "1500 steps."),
     "noisy": (False, "not in the paper, for noisy scans: the `fast` preset (no phase-1 step) with its input "
                      "always smoothed after the outlier filter (every point moved onto the quadratic jet of its 120 "
                      "nearest neighbours, CGAL's jet smoothing), where `fast` smooths only input that looks noisy. "
