@@ -194,14 +194,15 @@ class PointCloudConfig(Presets):
         statistical test that keeps sparse stretches of surface), up to 100K seeds (every input point of a
         Table 2 cloud) and their poles (`dmesh.recon.init`) instead of 10K seeds and all their Voronoi
         vertices, faces far from the input
-        carved (`carve_far_faces`, for holes and open borders), no phase-1 step, 10 phase-2 steps on 50K
-        target points and samples, one-sheet extraction (`dmesh.extract`). An input that looks noisy
+        carved (`carve_far_faces`, for holes and open borders), no gradient step (the 10 phase-2 steps on 50K
+        target points and samples it took at 40K seeds cost accuracy at 100K; `steps_phase2=10` restores
+        them), one-sheet extraction (`dmesh.extract`). An input that looks noisy
         (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`); clean
         input is not. Why each choice: docs/preset_choices.md; why no phase-1 step: `python -m eval.bench
         recipes`."""
         base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=FAST_SEEDS, voronoi="poles",
                     carve=5.0, max_voronoi=None,
-                    num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=10, k_max=16,
+                    num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=0, k_max=16,
                     lambda_weight=0.0, real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
         return cls(**{**base, **overrides})
 
@@ -246,9 +247,8 @@ POINTCLOUD_RECIPES = {
     "fast": (False, "an initialisation, no phase-1 step: stray input points dropped and, when the input looks "
                     "noisy, the rest smoothed as `noisy` does (both not upstream), up to 100K seeds (every point of a "
                     "100K-point cloud) + their poles (not all Voronoi vertices), faces far from the input carved, "
-                    "then 10 phase-2 steps (reals only) on 50K target points and samples, K <= 16, one-sheet "
-                    "extraction. Differs: no position or weight optimisation, 10x the seeds, 10 of the paper's "
-                    "1500 steps."),
+                    "no gradient step, one-sheet extraction. Differs: no optimisation (none of the paper's 1500 "
+                    "steps), 10x the seeds."),
     "noisy": (False, "not in the paper, for noisy scans: the `fast` preset (no phase-1 step) with its input "
                      "always smoothed after the outlier filter (every point moved onto the quadratic jet of its 120 "
                      "nearest neighbours, CGAL's jet smoothing), where `fast` smooths only input that looks noisy. "
