@@ -48,6 +48,15 @@ def test_every_preset_has_a_recipe(kind):
     assert config.POINTCLOUD_RECIPES["fast"][0] is False and multiview_config.MULTIVIEW_RECIPES["fast"][0] is True
 
 
+def test_a_point_cloud_recipe_says_gradient_steps_exactly_when_its_preset_takes_some():
+    """The tables label each row "gradient steps" or "initialisation" from the recipe; the preset decides."""
+    from dmesh.recon.config import POINTCLOUD_RECIPES
+
+    for preset, (steps, _) in POINTCLOUD_RECIPES.items():
+        cfg = PointCloudConfig.preset(preset)
+        assert steps == (cfg.steps_phase1 + cfg.steps_phase2 > 0), preset
+
+
 def test_pointcloud_config_validation():
     with pytest.raises(ValueError, match="num_init"):
         PointCloudConfig(num_init=0)
