@@ -401,7 +401,9 @@ def _orientable(n_faces: int, edge_of: np.ndarray, two: np.ndarray, bad_winding:
 
 
 def self_intersecting_faces(vertices: np.ndarray, faces: np.ndarray) -> int:
-    """Number of faces that intersect another face not sharing a vertex with it (pymeshlab); -1 without it."""
+    """Number of faces that cross another face, as MeshLab's self-intersection selection finds them (pymeshlab;
+    a neighbour sharing one vertex counts when the edge opposite that vertex passes through it); -1 without
+    pymeshlab."""
     if len(faces) == 0:
         return 0
     try:
