@@ -22,8 +22,8 @@ DEFAULT_PRESET = "fast"
 POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "tiny")
 #: Neighbours of the input smoothing of the `noisy` preset, and of `fast`'s when its input looks noisy.
 NOISY_SMOOTH_K = 120
-#: Real seeds of the `fast` preset: every point of a cloud up to this size (a random subset of a larger one).
-#: CD p2s falls about as 1 / seeds (docs/preset_choices.md), and the time stays well under a minute per shape.
+#: Real seeds of the `fast` preset: every point of a cloud up to this size (a random subset of a larger one);
+#: why: docs/preset_choices.md.
 FAST_SEEDS = 100_000
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
@@ -194,9 +194,8 @@ class PointCloudConfig(Presets):
         statistical test that keeps sparse stretches of surface), up to 100K seeds (every input point of a
         Table 2 cloud) and their poles (`dmesh.recon.init`) instead of 10K seeds and all their Voronoi
         vertices, faces far from the input
-        carved (`carve_far_faces`, for holes and open borders), no gradient step (the 10 phase-2 steps on 50K
-        target points and samples it took at 40K seeds cost accuracy at 100K; `steps_phase2=10` restores
-        them), one-sheet extraction (`dmesh.extract`). An input that looks noisy
+        carved (`carve_far_faces`, for holes and open borders), no gradient step (at this density the
+        steps cost accuracy), one-sheet extraction (`dmesh.extract`). An input that looks noisy
         (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`); clean
         input is not. Why each choice: docs/preset_choices.md; why no phase-1 step: `python -m eval.bench
         recipes`."""
