@@ -181,8 +181,9 @@ class Surface:
             vertex per sheet: `dmesh.repair.split_fans`; `_surface_mesh` moves them apart).
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
-            tets_flipped, closed_faces, holes_filled, hole_faces, holes_left, fins_dropped, crumbs_dropped,
-            split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
+            tets_flipped, closed_faces, holes_filled, hole_faces, holes_left (holes_crossing of them left open
+            because their fill crossed the surface), fins_dropped, crumbs_dropped, split_vertices,
+            folds_dropped, sheet_faces; vote ("parity" or "winding").
     """
 
     faces: np.ndarray
@@ -232,7 +233,8 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
             "closed_faces": int(len(closed))}
     sheet = pd.faces[walls & ~between].astype(np.int64)
     if cfg.clean:
-        fill, filled, left = repair.fill_holes(points, closed, cfg.max_hole) if len(closed) else (closed, 0, 0)
+        fill, filled, left, crossing = (repair.fill_holes(points, closed, cfg.max_hole, others=sheet) if len(closed)
+                                        else (closed, 0, 0, 0))
         closed = np.concatenate([closed, fill])
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
@@ -240,8 +242,8 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
             crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]
-        info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, fins_dropped=int(fins.sum()),
-                    crumbs_dropped=int(crumbs.sum()))
+        info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing,
+                    fins_dropped=int(fins.sum()), crumbs_dropped=int(crumbs.sum()))
     sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
                                  turn_faces=cfg.turn_faces)
     faces = np.concatenate([closed, sheet])

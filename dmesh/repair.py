@@ -336,12 +336,19 @@ def hole_loops(faces: np.ndarray) -> list[list[int]]:
     return [loop for loop in loops if len(loop) >= 3]
 
 
-def fill_loop(loop: list[int], vertices: np.ndarray, taken: set) -> np.ndarray | None:
+def fill_loop(loop: list[int], vertices: np.ndarray, taken: set, banned: set = frozenset()) -> np.ndarray | None:
     """(len(loop) - 2, 3) int64 triangles of least total area spanning the polygon `loop` (dynamic
     programming over its diagonals, as in Barequet and Sharir, "Filling gaps in the boundary of a
     polyhedron", CAGD 1995), wound along the loop; diagonals in `taken` (sorted vertex pairs of existing
-    edges) are not used. None when no such triangulation exists."""
+    edges) and triangles in `banned` (sorted vertex triples) are not used. None when no such triangulation
+    exists."""
     n = len(loop)
+    at = {u: i for i, u in enumerate(loop)}
+    skip: dict[tuple[int, int], list[int]] = {}  # (i, j) -> apexes k of banned triangles (i, k, j)
+    for tri in banned:
+        if all(u in at for u in tri):
+            i, k, j = sorted(at[u] for u in tri)
+            skip.setdefault((i, j), []).append(k)
     ids = np.asarray(loop, dtype=np.int64)
     p = vertices[ids]
     free = np.ones((n, n), bool)
@@ -358,7 +365,7 @@ def fill_loop(loop: list[int], vertices: np.ndarray, taken: set) -> np.ndarray |
             if not free[i, j]:
                 continue
             k = np.arange(i + 1, j)
-            k = k[free[i, k] & free[k, j]]
+            k = k[free[i, k] & free[k, j] & ~np.isin(k, skip.get((i, j), ()))]
             if len(k) == 0:
                 continue
             area = 0.5 * np.linalg.norm(np.cross(p[k] - p[i], p[j] - p[i]), axis=1)
@@ -377,25 +384,141 @@ def fill_loop(loop: list[int], vertices: np.ndarray, taken: set) -> np.ndarray |
     return np.asarray(out, dtype=np.int64)
 
 
-def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int) -> tuple[np.ndarray, int, int]:
+#: Times a hole whose fill crosses the surface is filled again without the crossing triangles.
+FILL_RETRIES = 3
+
+
+def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrossed: bool = True,
+               others: np.ndarray | None = None) -> tuple[np.ndarray, int, int, int]:
     """Triangles closing the holes of consistently wound `faces` that have at most `max_edges` edges
     (`fill_loop`, no new vertex, no edge used by more than two faces).
 
+    With `uncrossed`, every hole is filled first, then the fills with a triangle crossing `faces` or
+    another hole's triangles or `others` (more faces of the mesh, e.g. its sheets; (., 3) int)
+    (`crossing_triangles`) are made again without those triangles, up to `FILL_RETRIES` times, and left
+    open if they still cross: a fill is not a face of the triangulation, and one through its neighbours
+    makes a self-intersecting mesh.
+
     Returns:
-        (K, 3) int64 new faces, the number of holes filled, the number left open.
+        (K, 3) int64 new faces, the number of holes filled, the number left open, and how many of those
+        were left open because their fill crossed the surface.
     """
     f = np.asarray(faces, dtype=np.int64)
-    taken = set(map(tuple, edge_table(f)[0].tolist()))
-    new, filled, left = [], 0, 0
-    for loop in hole_loops(f):
-        tris = fill_loop(loop, vertices, taken) if len(loop) <= max_edges else None
-        if tris is None:
-            left += 1
-            continue
-        new.append(tris)
-        filled += 1
-        taken.update(map(tuple, np.sort(_half_edges(tris), axis=1).tolist()))
-    return (np.concatenate(new) if new else np.zeros((0, 3), np.int64)), filled, left
+    v = np.asarray(vertices, dtype=np.float64)
+    others = np.zeros((0, 3), np.int64) if others is None else np.asarray(others, dtype=np.int64)
+    every = hole_loops(f)
+    loops = [loop for loop in every if len(loop) <= max_edges]
+    fills: dict[int, np.ndarray] = {}  # hole -> its accepted triangles
+    banned: dict[int, set] = {}  # hole -> triangles of its earlier fills that crossed
+    todo, unfillable = list(range(len(loops))), 0
+    for attempt in range(1 + (FILL_RETRIES if uncrossed else 0)):
+        kept = [fills[i] for i in sorted(fills)]
+        taken = set(map(tuple, edge_table(np.concatenate([f, *kept]))[0].tolist()))
+        new, owner = [], []
+        for i in todo:
+            tris = fill_loop(loops[i], v, taken, banned.get(i, frozenset()))
+            if tris is None:  # first attempt: no triangulation; later: none without a crossing triangle
+                unfillable += attempt == 0
+                continue
+            new.append(tris)
+            owner.append(np.full(len(tris), i))
+            taken.update(map(tuple, np.sort(_half_edges(tris), axis=1).tolist()))
+        if not new:
+            break
+        tris, owner = np.concatenate(new), np.concatenate(owner)
+        hit = (crossing_triangles(v, tris, np.concatenate([f, others, *kept, tris])) if uncrossed
+               else np.zeros(len(tris), bool))
+        todo = np.unique(owner[hit]).tolist()
+        for i in todo:
+            banned.setdefault(i, set()).update(map(tuple, np.sort(tris[hit & (owner == i)], axis=1).tolist()))
+        fills.update((i, tris[owner == i]) for i in np.setdiff1d(owner, todo).tolist())
+        if not todo:
+            break
+    fill = np.concatenate([fills[i] for i in sorted(fills)]) if fills else np.zeros((0, 3), np.int64)
+    crossing = len(loops) - unfillable - len(fills)
+    return fill, len(fills), len(every) - len(fills), crossing
+
+
+# ------------------------------------------------------------------------------------------------ crossings
+# Written here: pymeshlab's self-intersection filter is a harness extra, and CGAL's (through the native
+# module) tests every pair of the mesh where only the few fill triangles against their neighbours are needed.
+
+#: Faces whose bounding sphere is larger than this quantile of radii are tested against every fill triangle
+#: instead of through the centroid tree (whose search radius grows with the largest face).
+LARGE_FACE_QUANTILE = 0.99
+
+#: Pairs tested at once against the large faces (bounds memory).
+PAIR_CHUNK = 1 << 20
+
+
+def segments_through_triangles(p0: np.ndarray, p1: np.ndarray, a: np.ndarray, b: np.ndarray,
+                               c: np.ndarray, eps: float = 1e-9) -> np.ndarray:
+    """(P,) bool: segment p0[i] p1[i] passes through the interior of triangle a[i] b[i] c[i], all (P, 3)
+    float64 (Moller and Trumbore, "Fast, minimum storage ray-triangle intersection", JGT 1997). A segment
+    that only touches the triangle, or lies in its plane, does not."""
+    d = p1 - p0
+    e1, e2 = b - a, c - a
+    h = np.cross(d, e2)
+    det = np.einsum("pc,pc->p", e1, h)
+    ok = np.abs(det) > FLOAT64_FLOOR
+    inv = 1.0 / np.where(ok, det, 1.0)
+    s = p0 - a
+    u = np.einsum("pc,pc->p", s, h) * inv
+    q = np.cross(s, e1)
+    w = np.einsum("pc,pc->p", d, q) * inv
+    t = np.einsum("pc,pc->p", e2, q) * inv
+    return ok & (u > eps) & (w > eps) & (u + w < 1 - eps) & (t > eps) & (t < 1 - eps)
+
+
+def triangles_cross(vertices: np.ndarray, s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(P,) bool over pairs of triangles s[i], t[i] ((P, 3) vertex ids): an edge of one passes through the
+    other. Pairs sharing one vertex test only the edges opposite it (as VCG's self-intersection filter
+    does); pairs sharing an edge or more never cross."""
+    same = s[:, :, None] == t[:, None, :]
+    n = same.any(2).sum(1)
+    out = np.zeros(len(s), bool)
+    for x, y, x_shared in ((s, t, same.any(2)), (t, s, same.any(1))):
+        a, b, c = (vertices[y[:, k]] for k in range(3))
+        for i in range(3):  # the edge of x opposite its corner i
+            use = (n == 0) | ((n == 1) & x_shared[:, i])
+            if use.any():
+                j, k = (i + 1) % 3, (i + 2) % 3
+                hit = segments_through_triangles(vertices[x[use, j]], vertices[x[use, k]], a[use], b[use], c[use])
+                out[np.flatnonzero(use)[hit]] = True
+    return out
+
+
+def crossing_triangles(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(T,) bool: triangles `tris` crossing a triangle of `faces` (`triangles_cross`; `faces` may contain
+    `tris`). Candidate pairs are those whose bounding spheres (centroid, farthest corner) overlap."""
+    from scipy.spatial import cKDTree
+
+    hit = np.zeros(len(tris), bool)
+    if len(tris) == 0 or len(faces) == 0:
+        return hit
+    fc = vertices[faces].mean(1)
+    fr = np.linalg.norm(vertices[faces] - fc[:, None], axis=2).max(1)
+    tc = vertices[tris].mean(1)
+    tr = np.linalg.norm(vertices[tris] - tc[:, None], axis=2).max(1)
+    large = fr > np.quantile(fr, LARGE_FACE_QUANTILE)
+    small = np.flatnonzero(~large)
+    near = cKDTree(fc[small]).query_ball_point(tc, tr + fr[small].max())
+    ti = np.repeat(np.arange(len(tris)), [len(x) for x in near])
+    fi = small[np.concatenate([np.asarray(x, np.int64) for x in near])]
+    _mark_crossing(vertices, tris, faces, ti, fi, tc, tr, fc, fr, hit)
+    large = np.flatnonzero(large)
+    step = max(1, PAIR_CHUNK // len(tris))
+    for at in range(0, len(large), step):
+        ti, fi = np.meshgrid(np.arange(len(tris)), large[at:at + step], indexing="ij")
+        _mark_crossing(vertices, tris, faces, ti.ravel(), fi.ravel(), tc, tr, fc, fr, hit)
+    return hit
+
+
+def _mark_crossing(vertices, tris, faces, ti, fi, tc, tr, fc, fr, hit) -> None:
+    """Set hit[ti[p]] for the candidate pairs (ti[p], fi[p]) whose spheres overlap and whose triangles cross."""
+    close = np.linalg.norm(tc[ti] - fc[fi], axis=1) <= tr[ti] + fr[fi]
+    ti, fi = ti[close], fi[close]
+    hit[ti[triangles_cross(vertices, tris[ti], faces[fi])]] = True
 
 
 # ------------------------------------------------------------------------------------------------ fins

@@ -14,12 +14,74 @@ def test_fill_holes_restores_a_box():
     box = trimesh.creation.box()
     for drop in ([0], [0, 1]):  # a triangle hole and a square one
         keep = np.setdiff1d(np.arange(len(box.faces)), drop)
-        fill, filled, left = repair.fill_holes(box.vertices, box.faces[keep], max_edges=8)
-        assert (filled, left) == (1, 0)
+        fill, filled, left, crossing = repair.fill_holes(box.vertices, box.faces[keep], max_edges=8)
+        assert (filled, left, crossing) == (1, 0, 0)
         mesh = check_closed(np.concatenate([box.faces[keep], fill]), box.vertices)
         assert mesh.volume == pytest.approx(1.0)
     # Too large a hole stays open.
-    assert repair.fill_holes(box.vertices, box.faces[2:], max_edges=3)[1:] == (0, 1)
+    assert repair.fill_holes(box.vertices, box.faces[2:], max_edges=3)[1:] == (0, 1, 0)
+
+
+def test_a_hole_whose_fill_would_cross_the_surface_stays_open():
+    box = trimesh.creation.box()  # the top (+z) square is faces whose normals point up
+    top = np.flatnonzero(box.face_normals[:, 2] > 0.5)
+    keep = np.setdiff1d(np.arange(len(box.faces)), top)
+    # A closed thin tetrahedron from inside the box out through the square hole.
+    spike = np.array([[0.05, -0.1, 0.0], [-0.1, 0.05, 0.0], [0.1, 0.1, 0.0], [0.0, 0.0, 1.5]])
+    v = np.vstack([box.vertices, spike])
+    n = len(box.vertices)
+    tet = n + np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
+    faces = np.concatenate([box.faces[keep], tet])
+    fill, filled, left, crossing = repair.fill_holes(v, faces, max_edges=8)
+    assert (len(fill), filled, left, crossing) == (0, 0, 1, 1)
+    fill, filled, left, crossing = repair.fill_holes(v, faces, max_edges=8, uncrossed=False)
+    assert (len(fill), filled, left, crossing) == (2, 1, 0, 0)
+    assert repair.crossing_triangles(v, fill, faces).all()
+    # Faces that bound no hole but must not be crossed either (the sheets beside a closed part).
+    assert repair.fill_holes(v, box.faces[keep], max_edges=8, others=tet)[1:] == (0, 1, 1)
+    assert repair.fill_holes(v, box.faces[keep], max_edges=8)[1:] == (1, 0, 0)
+
+
+def test_a_crossing_fill_is_made_again_without_its_crossing_triangles():
+    box = trimesh.creation.box()
+    top = np.flatnonzero(box.face_normals[:, 2] > 0.5)
+    keep = np.setdiff1d(np.arange(len(box.faces)), top)
+    v = box.vertices.copy()
+    v[(v[:, 2] > 0) & (v[:, 0] * v[:, 1] < 0)] += [0, 0, 0.5]  # the hole is a saddle: two different fills
+    v[(v[:, 2] > 0) & (v[:, 0] > 0) & (v[:, 1] > 0)] += [0, 0, 0.2]  # the one over the raised corners is smaller
+    spike = np.array([[0.05, -0.1, 1.5], [-0.1, 0.05, 1.5], [0.1, 0.1, 1.5], [0.0, 0.0, 0.8]])  # from above,
+    n = len(v)  # down through the smaller fill (height 1 at the middle) but not the other (0.6)
+    v = np.vstack([v, spike])
+    tet = n + np.array([[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+    first = repair.fill_holes(v, box.faces[keep], max_edges=8)[0]
+    assert repair.crossing_triangles(v, first, tet).any()
+    fill, filled, left, crossing = repair.fill_holes(v, box.faces[keep], max_edges=8, others=tet)
+    assert (len(fill), filled, left, crossing) == (2, 1, 0, 0)
+    assert not repair.crossing_triangles(v, fill, tet).any()
+    check_closed(np.concatenate([box.faces[keep], fill]), v)
+
+
+def test_triangle_crossings_match_pymeshlab():
+    """Random triangle pairs, far apart from each other, half sharing one vertex: the pairs our test calls
+    crossing are exactly those whose faces VCG's self-intersection filter selects."""
+    pymeshlab = pytest.importorskip("pymeshlab")
+    rng = np.random.default_rng(0)
+    pairs, shared = 400, 200
+    pts = rng.uniform(-1, 1, (pairs, 6, 3)) + 10.0 * np.arange(pairs)[:, None, None]
+    ids = 6 * np.arange(pairs)[:, None] + np.array([0, 1, 2, 3, 4, 5])
+    s, t = ids[:, :3].copy(), ids[:, 3:].copy()
+    t[:shared, 0] = s[:shared, 0]  # share one vertex
+    v = pts.reshape(-1, 3)
+    ours = repair.triangles_cross(v, s, t)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=v, face_matrix=np.concatenate([s, t]).astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    picked = ms.current_mesh().face_selection_array()
+    assert 20 < ours[:shared].sum() and 20 < ours[shared:].sum()  # both kinds cross often enough to test
+    assert np.array_equal(ours, picked[:pairs] & picked[pairs:])
+    assert np.array_equal(picked[:pairs], picked[pairs:])
+    # The batch version over a whole face list agrees, and a triangle never crosses itself or a neighbour.
+    assert np.array_equal(repair.crossing_triangles(v, s, np.concatenate([s, t])), ours)
 
 
 def test_hole_loops_split_at_a_shared_vertex():
