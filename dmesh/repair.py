@@ -343,35 +343,32 @@ def fill_loop(loop: list[int], vertices: np.ndarray, taken: set, banned: set = f
     edges) and triangles in `banned` (sorted vertex triples) are not used. None when no such triangulation
     exists."""
     n = len(loop)
-    at = {u: i for i, u in enumerate(loop)}
-    skip: dict[tuple[int, int], list[int]] = {}  # (i, j) -> apexes k of banned triangles (i, k, j)
-    for tri in banned:
-        if all(u in at for u in tri):
-            i, k, j = sorted(at[u] for u in tri)
-            skip.setdefault((i, j), []).append(k)
     ids = np.asarray(loop, dtype=np.int64)
     p = vertices[ids]
-    free = np.ones((n, n), bool)
-    for i in range(n):
-        for j in range(i + 2, n):
-            if not (i == 0 and j == n - 1):
-                free[i, j] = (min(loop[i], loop[j]), max(loop[i], loop[j])) not in taken
+    free = np.ones((n, n), bool)  # free[i, j], i < j: the chord i-j may be used (the loop's edges always)
+    i, j = np.triu_indices(n, 2)
+    chords = zip(np.minimum(ids[i], ids[j]).tolist(), np.maximum(ids[i], ids[j]).tolist())
+    used = np.fromiter((c in taken for c in chords), bool, len(i)) & ~((i == 0) & (j == n - 1))
+    free[i[used], j[used]] = False
+    d = p[None, :, :] - p[:, None, :]  # d[i, k] = p[k] - p[i]
+    area = 0.5 * np.linalg.norm(np.cross(d[:, :, None, :], d[:, None, :, :]), axis=-1)  # area[i, k, j]
+    at = {u: x for x, u in enumerate(loop)}
+    for tri in banned:
+        if all(u in at for u in tri):
+            area[tuple(sorted(at[u] for u in tri))] = np.inf
     cost = np.full((n, n), np.inf)
     split = np.full((n, n), -1, np.int64)
     cost[np.arange(n - 1), np.arange(1, n)] = 0.0
-    for gap in range(2, n):
-        for i in range(n - gap):
-            j = i + gap
-            if not free[i, j]:
-                continue
-            k = np.arange(i + 1, j)
-            k = k[free[i, k] & free[k, j] & ~np.isin(k, skip.get((i, j), ()))]
-            if len(k) == 0:
-                continue
-            area = 0.5 * np.linalg.norm(np.cross(p[k] - p[i], p[j] - p[i]), axis=1)
-            total = cost[i, k] + cost[k, j] + area
-            best = int(np.argmin(total))
-            cost[i, j], split[i, j] = total[best], k[best]
+    for gap in range(2, n):  # every chord i-j of this length at once, over its apexes k
+        i = np.arange(n - gap)[:, None]
+        j = i + gap
+        k = i + np.arange(1, gap)[None, :]
+        total = cost[i, k] + cost[k, j] + area[i, k, j]
+        best = np.argmin(total, axis=1)
+        value = total[np.arange(len(i)), best]
+        ok = free[i[:, 0], j[:, 0]] & np.isfinite(value)
+        cost[i[ok, 0], j[ok, 0]] = value[ok]
+        split[i[ok, 0], j[ok, 0]] = k[ok, best[ok]]
     if not np.isfinite(cost[0, n - 1]):
         return None
     out, stack = [], [(0, n - 1)]
@@ -411,10 +408,11 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
     fills: dict[int, np.ndarray] = {}  # hole -> its accepted triangles
     banned: dict[int, set] = {}  # hole -> triangles of its earlier fills that crossed
     todo, unfillable = list(range(len(loops))), 0
+    taken = set(map(tuple, edge_table(f)[0].tolist()))  # edges of the faces and of the fills kept so far
+    surface = FaceIndex(v, np.concatenate([f, others])) if uncrossed else None
     for attempt in range(1 + (FILL_RETRIES if uncrossed else 0)):
         kept = [fills[i] for i in sorted(fills)]
-        taken = set(map(tuple, edge_table(np.concatenate([f, *kept]))[0].tolist()))
-        new, owner = [], []
+        new, owner, chords = [], [], {}
         for i in todo:
             tris = fill_loop(loops[i], v, taken, banned.get(i, frozenset()))
             if tris is None:  # first attempt: no triangulation; later: none without a crossing triangle
@@ -422,14 +420,16 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
                 continue
             new.append(tris)
             owner.append(np.full(len(tris), i))
-            taken.update(map(tuple, np.sort(_half_edges(tris), axis=1).tolist()))
+            chords[i] = set(map(tuple, np.sort(_half_edges(tris), axis=1).tolist())) - taken
+            taken |= chords[i]
         if not new:
             break
         tris, owner = np.concatenate(new), np.concatenate(owner)
-        hit = (crossing_triangles(v, tris, np.concatenate([f, others, *kept, tris])) if uncrossed
+        hit = (surface.crossing(tris) | crossing_triangles(v, tris, np.concatenate([*kept, tris])) if uncrossed
                else np.zeros(len(tris), bool))
         todo = np.unique(owner[hit]).tolist()
         for i in todo:
+            taken -= chords[i]
             banned.setdefault(i, set()).update(map(tuple, np.sort(tris[hit & (owner == i)], axis=1).tolist()))
         fills.update((i, tris[owner == i]) for i in np.setdiff1d(owner, todo).tolist())
         if not todo:
@@ -442,14 +442,6 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
 # ------------------------------------------------------------------------------------------------ crossings
 # Written here: pymeshlab's self-intersection filter is a harness extra, and CGAL's (through the native
 # module) tests every pair of the mesh where only the few fill triangles against their neighbours are needed.
-
-#: Faces whose bounding sphere is larger than this quantile of radii are tested against every fill triangle
-#: instead of through the centroid tree (whose search radius grows with the largest face).
-LARGE_FACE_QUANTILE = 0.99
-
-#: Pairs tested at once against the large faces (bounds memory).
-PAIR_CHUNK = 1 << 20
-
 
 def segments_through_triangles(p0: np.ndarray, p1: np.ndarray, a: np.ndarray, b: np.ndarray,
                                c: np.ndarray, eps: float = 1e-9) -> np.ndarray:
@@ -488,37 +480,52 @@ def triangles_cross(vertices: np.ndarray, s: np.ndarray, t: np.ndarray) -> np.nd
     return out
 
 
-def crossing_triangles(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(T,) bool: triangles `tris` crossing a triangle of `faces` (`triangles_cross`; `faces` may contain
-    `tris`). Candidate pairs are those whose bounding spheres (centroid, farthest corner) overlap."""
-    from scipy.spatial import cKDTree
+class FaceIndex:
+    """Bounding spheres (centroid, farthest corner) of faces and a tree of their centroids, to find the faces
+    that a few triangles cross (`crossing`) without rebuilding it for each batch."""
 
-    hit = np.zeros(len(tris), bool)
-    if len(tris) == 0 or len(faces) == 0:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self.vertices, self.faces = vertices, np.asarray(faces, dtype=np.int64)
+        self.centres, self.radii = _spheres(vertices, self.faces)
+        # One tree per power-of-two band of radii: a search reaches only as far as the band's largest face.
+        band = np.floor(np.log2(np.maximum(self.radii, FLOAT64_FLOOR))).astype(np.int64)
+        self.bands = []
+        for b in np.unique(band):
+            members = np.flatnonzero(band == b)
+            self.bands.append((members, cKDTree(self.centres[members]), self.radii[members].max()))
+
+    def crossing(self, tris: np.ndarray) -> np.ndarray:
+        """(T,) bool: triangles `tris` ((T, 3) vertex ids) crossing one of the faces (`triangles_cross`;
+        the faces may contain them). Candidate pairs are those whose bounding spheres overlap."""
+        tris = np.asarray(tris, dtype=np.int64)
+        hit = np.zeros(len(tris), bool)
+        if len(tris) == 0 or len(self.faces) == 0:
+            return hit
+        centres, radii = _spheres(self.vertices, tris)
+        for members, tree, reach in self.bands:
+            near = tree.query_ball_point(centres, radii + reach)
+            ti = np.repeat(np.arange(len(tris)), [len(x) for x in near])
+            if len(ti) == 0:
+                continue
+            fi = members[np.concatenate([np.asarray(x, np.int64) for x in near])]
+            close = np.linalg.norm(centres[ti] - self.centres[fi], axis=1) <= radii[ti] + self.radii[fi]
+            ti, fi = ti[close], fi[close]
+            hit[ti[triangles_cross(self.vertices, tris[ti], self.faces[fi])]] = True
         return hit
-    fc = vertices[faces].mean(1)
-    fr = np.linalg.norm(vertices[faces] - fc[:, None], axis=2).max(1)
-    tc = vertices[tris].mean(1)
-    tr = np.linalg.norm(vertices[tris] - tc[:, None], axis=2).max(1)
-    large = fr > np.quantile(fr, LARGE_FACE_QUANTILE)
-    small = np.flatnonzero(~large)
-    near = cKDTree(fc[small]).query_ball_point(tc, tr + fr[small].max())
-    ti = np.repeat(np.arange(len(tris)), [len(x) for x in near])
-    fi = small[np.concatenate([np.asarray(x, np.int64) for x in near])]
-    _mark_crossing(vertices, tris, faces, ti, fi, tc, tr, fc, fr, hit)
-    large = np.flatnonzero(large)
-    step = max(1, PAIR_CHUNK // len(tris))
-    for at in range(0, len(large), step):
-        ti, fi = np.meshgrid(np.arange(len(tris)), large[at:at + step], indexing="ij")
-        _mark_crossing(vertices, tris, faces, ti.ravel(), fi.ravel(), tc, tr, fc, fr, hit)
-    return hit
 
 
-def _mark_crossing(vertices, tris, faces, ti, fi, tc, tr, fc, fr, hit) -> None:
-    """Set hit[ti[p]] for the candidate pairs (ti[p], fi[p]) whose spheres overlap and whose triangles cross."""
-    close = np.linalg.norm(tc[ti] - fc[fi], axis=1) <= tr[ti] + fr[fi]
-    ti, fi = ti[close], fi[close]
-    hit[ti[triangles_cross(vertices, tris[ti], faces[fi])]] = True
+def _spheres(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) centroids and (F,) distances to the farthest corner of the triangles `faces`."""
+    corners = vertices[faces]
+    centres = corners.mean(1)
+    return centres, np.linalg.norm(corners - centres[:, None], axis=2).max(1)
+
+
+def crossing_triangles(vertices: np.ndarray, tris: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(T,) bool: triangles `tris` crossing a triangle of `faces` (`FaceIndex.crossing`)."""
+    return FaceIndex(vertices, faces).crossing(tris)
 
 
 # ------------------------------------------------------------------------------------------------ fins
