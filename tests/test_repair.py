@@ -61,6 +61,20 @@ def test_a_crossing_fill_is_made_again_without_its_crossing_triangles():
     check_closed(np.concatenate([box.faces[keep], fill]), v)
 
 
+def test_a_small_triangle_crossing_a_huge_face_far_from_its_centre_is_found():
+    """The index keeps faces in bands of radius; a search must reach a huge face from near its corner."""
+    big = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [0.0, 100.0, 0.0]])
+    rng = np.random.default_rng(1)
+    crumbs = rng.uniform(0, 50, (300, 1, 3)) + np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]]) + [0, 0, 5.0]
+    poke = np.array([[1.0, 1.0, -0.1], [1.05, 1.0, 0.1], [1.0, 1.05, 0.1]])  # through the big face, near a corner
+    miss = poke + [0, 0, 1.0]
+    v = np.vstack([big, crumbs.reshape(-1, 3), poke, miss])
+    faces = np.arange(3 + 900).reshape(-1, 3)
+    tris = np.arange(903, 909).reshape(-1, 3)
+    assert repair.crossing_triangles(v, tris, faces).tolist() == [True, False]
+    assert repair.crossing_triangles(v, tris, faces[1:]).tolist() == [False, False]
+
+
 def test_triangle_crossings_match_pymeshlab():
     """Random triangle pairs, far apart from each other, half sharing one vertex: the pairs our test calls
     crossing are exactly those whose faces VCG's self-intersection filter selects."""
