@@ -350,12 +350,9 @@ def fill_loop(loop: list[int], vertices: np.ndarray, taken: set, banned: set = f
     chords = zip(np.minimum(ids[i], ids[j]).tolist(), np.maximum(ids[i], ids[j]).tolist())
     used = np.fromiter((c in taken for c in chords), bool, len(i)) & ~((i == 0) & (j == n - 1))
     free[i[used], j[used]] = False
-    d = p[None, :, :] - p[:, None, :]  # d[i, k] = p[k] - p[i]
-    area = 0.5 * np.linalg.norm(np.cross(d[:, :, None, :], d[:, None, :, :]), axis=-1)  # area[i, k, j]
     at = {u: x for x, u in enumerate(loop)}
-    for tri in banned:
-        if all(u in at for u in tri):
-            area[tuple(sorted(at[u] for u in tri))] = np.inf
+    skip = np.array([sorted(at[u] for u in tri) for tri in banned if all(u in at for u in tri)],
+                    np.int64).reshape(-1, 3)  # (i, k, j) positions of the banned triangles
     cost = np.full((n, n), np.inf)
     split = np.full((n, n), -1, np.int64)
     cost[np.arange(n - 1), np.arange(1, n)] = 0.0
@@ -363,7 +360,10 @@ def fill_loop(loop: list[int], vertices: np.ndarray, taken: set, banned: set = f
         i = np.arange(n - gap)[:, None]
         j = i + gap
         k = i + np.arange(1, gap)[None, :]
-        total = cost[i, k] + cost[k, j] + area[i, k, j]
+        area = 0.5 * np.linalg.norm(np.cross(p[k] - p[i], p[j] - p[i]), axis=-1)
+        mine = skip[skip[:, 2] - skip[:, 0] == gap]
+        area[mine[:, 0], mine[:, 1] - mine[:, 0] - 1] = np.inf
+        total = cost[i, k] + cost[k, j] + area
         best = np.argmin(total, axis=1)
         value = total[np.arange(len(i)), best]
         ok = free[i[:, 0], j[:, 0]] & np.isfinite(value)

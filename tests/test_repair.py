@@ -98,6 +98,19 @@ def test_triangle_crossings_match_pymeshlab():
     assert np.array_equal(repair.crossing_triangles(v, s, np.concatenate([s, t])), ours)
 
 
+def test_a_long_planar_hole_gets_its_polygon_area():
+    """A least-area triangulation of a flat convex loop covers exactly the polygon (shoelace area), with
+    n - 2 triangles; a loop of hundreds of edges stays cheap in memory (chord lengths one at a time)."""
+    n = 400
+    angle = np.sort(np.random.default_rng(0).uniform(0, 2 * np.pi, n))
+    v = np.stack([np.cos(angle), np.sin(angle), np.zeros(n)], axis=1)
+    tris = repair.fill_loop(list(range(n)), v, set())
+    assert tris.shape == (n - 2, 3) and len(np.unique(np.sort(tris, axis=1), axis=0)) == n - 2
+    shoelace = 0.5 * abs(np.dot(v[:, 0], np.roll(v[:, 1], -1)) - np.dot(v[:, 1], np.roll(v[:, 0], -1)))
+    area = 0.5 * np.linalg.norm(np.cross(v[tris[:, 1]] - v[tris[:, 0]], v[tris[:, 2]] - v[tris[:, 0]]), axis=1)
+    assert area.sum() == pytest.approx(shoelace, rel=1e-9)
+
+
 def test_hole_loops_split_at_a_shared_vertex():
     bowtie = np.array([[0, 1, 2], [0, 3, 4]])  # two triangles that share vertex 0 only
     loops = repair.hole_loops(bowtie)
