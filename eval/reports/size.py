@@ -19,6 +19,7 @@ import math
 import re
 from pathlib import Path
 
+from dmesh.recon.config import FAST_SEEDS
 from eval.io import atomic_path, write_text
 from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
 
@@ -174,7 +175,8 @@ def write_size(df, out: str | Path) -> list[Path]:
     fig = size_plot(df, rows, out / "figures" / "recipes_size.png") if rows else None
     md = ["# DMesh's gradient steps at equal mesh size (point clouds)", "",
           "The `paper` preset (10K seeds, 1000 + 500 gradient steps) returns 2K-5K faces; the `fast` preset "
-          "(40K seeds, no phase-1 step) about 80K, and CD p2s falls with mesh size whatever made the mesh. Here "
+          f"(up to {FAST_SEEDS // 1000}K seeds, no phase-1 step) about {2 * FAST_SEEDS // 1000}K, and CD p2s "
+          "falls with mesh size whatever made the mesh. Here "
           "the fast start also runs at fewer seeds, once with phase-1 steps (`eval/sweeps/recipes_size.yaml`), "
           "and each run with gradient steps is compared with the gradient-free fast start interpolated (log-log) "
           "to the run's face count. *ratio* = fast start's CD at that face count / the run's CD: above 1, the "
@@ -191,8 +193,8 @@ def write_size(df, out: str | Path) -> list[Path]:
             ("shape", "shape", None), ("category", "class", None), ("recipe", "recipe", None),
             ("faces", "faces", 1, ".0f"), ("cd_p2s", "CD p2s", 1e3), ("time_s", "time (s)", 1, ".0f"),
             ("fast_cd_p2s_at_faces", "fast start's CD p2s at these faces", 1e3), ("ratio", "ratio", 1, ".2f"),
-            ("fast_default_faces", "fast (40K seeds) faces", 1, ".0f"),
-            ("fast_default_cd_p2s", "fast (40K seeds) CD p2s", 1e3),
+            ("fast_default_faces", "fast preset faces", 1, ".0f"),
+            ("fast_default_cd_p2s", "fast preset CD p2s", 1e3),
             ("fast_default_time_s", "fast time (s)", 1, ".0f")]))
         if fig:
             md += ["", f"![CD against faces](figures/{fig.name})"]
