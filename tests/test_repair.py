@@ -99,8 +99,9 @@ def test_triangle_crossings_match_pymeshlab():
 
 
 def test_a_long_planar_hole_gets_its_polygon_area():
-    """A least-area triangulation of a flat convex loop covers exactly the polygon (shoelace area), with
-    n - 2 triangles; a loop of hundreds of edges stays cheap in memory (chord lengths one at a time)."""
+    """The fill of a flat convex 400-edge loop is a triangulation of it: n - 2 distinct triangles whose areas
+    add up to the polygon's (shoelace) area. (Every triangulation of a convex polygon has that area, so this
+    checks validity, not minimality.)"""
     n = 400
     angle = np.sort(np.random.default_rng(0).uniform(0, 2 * np.pi, n))
     v = np.stack([np.cos(angle), np.sin(angle), np.zeros(n)], axis=1)

@@ -6,8 +6,8 @@ learning rates (lr = per-step bound), moving all parameters or only the position
 counts. The table gives CD p2s of the output against the clean GT, output faces, wall time, and the
 phase-1 loss at the first and last step; the `fast` row (no phase-1 step) is each group's reference.
 
-Regenerate: `python -m eval.bench recipes` (torus, bowl and plant at the fast preset's seeds; at its 40K
-seeds, until 4 December, about an hour on 2 cores); `--quick`: torus at 10K seeds.
+Regenerate: `python -m eval.bench recipes` (torus, bowl and plant at the fast preset's seeds; an hour or more
+on 2 cores); `--quick`: torus at 10K seeds.
 """
 from __future__ import annotations
 
