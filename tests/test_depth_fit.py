@@ -102,3 +102,64 @@ def test_residual_of_a_point_off_the_surface_is_its_normal_offset(ball):
 def test_bad_settings_are_named(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         DepthFitConfig(**bad)
+
+
+def _split_at_equator(mesh):
+    """The sphere as two pieces that meet along its equator: every vertex shared by a face above and one below
+    gets a second copy for the faces below, and the copies move a little into their own faces, as the surface
+    step splits a point where sheets meet (`dmesh.repair.separate_copies`). Returns (vertices, faces, source)."""
+    from dmesh.repair import separate_copies
+
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    below = v[f].mean(1)[:, 2] < 0
+    shared = np.intersect1d(f[below].ravel(), f[~below].ravel())
+    copy = np.full(len(v), -1)
+    copy[shared] = len(v) + np.arange(len(shared))
+    faces = f.copy()
+    faces[below] = np.where(copy[f[below]] >= 0, copy[f[below]], f[below])
+    source = np.concatenate([np.arange(len(v)), shared])
+    return separate_copies(v[source], faces, source), faces, source
+
+
+def test_copies_of_one_point_move_together(ball):
+    """With `groups`, the copies of a point take one offset along one axis, so the pieces keep their distance
+    and move as the unsplit mesh does; each copy on its own moves along its own piece's normal, and the two
+    pieces part."""
+    sphere, views = ball
+    whole = trimesh.creation.icosphere(subdivisions=3, radius=0.99)
+    v, f, source = _split_at_equator(whole)
+    copies = np.flatnonzero(np.bincount(source)[source] > 1)
+    assert len(copies) > 20
+    vw, center, scale, w2c = _frame(views)
+
+    def fit(vertices, faces, groups=None):
+        out, _ = fit_to_depth((vertices - center) * scale, faces, w2c, vw.fov_y_degrees,
+                              vw.depth.astype(np.float64) * scale, vw.mask, DepthFitConfig(), groups=groups)
+        return out / scale + center - vertices     # the displacements
+
+    together = fit(v, f, groups=source)
+    apart = fit(v, f)
+    unsplit = fit(np.asarray(whole.vertices), np.asarray(whole.faces))
+
+    def spread(d):  # the largest difference between the displacements of copies of one point
+        return max(np.abs(d[source == s] - d[source == s][0]).max() for s in np.unique(source[copies]))
+
+    assert spread(together) < 1e-12
+    assert spread(apart) > 1e-3
+    assert np.abs(together - unsplit[source]).max() < 1e-4       # each copy on its own: 8e-4
+    assert np.median(np.linalg.norm(unsplit, axis=1)) > 1e-3     # the fit does move the sphere's vertices
+
+
+def test_copy_groups_finds_each_copys_point():
+    from dmesh.recon.multiview import copy_groups
+
+    v, f, source = _split_at_equator(trimesh.creation.icosphere(subdivisions=2))
+    assert np.array_equal(copy_groups(v, trimesh.creation.icosphere(subdivisions=2).vertices), source)
+
+
+def test_groups_must_match_the_vertices(ball):
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.99)
+    vw, center, scale, w2c = _frame(ball[1])
+    with pytest.raises(ValueError, match="groups has 3 entries"):
+        fit_to_depth(np.asarray(mesh.vertices), mesh.faces, w2c, vw.fov_y_degrees, vw.depth.astype(np.float64),
+                     vw.mask, groups=[0, 1, 2])

@@ -22,7 +22,10 @@ The fit (a Gauss-Newton step of the squared depth residual on the mesh):
    `max_offset`. The factor m_i . n_s carries the sign, so the faces' winding does not matter.
 
 Topology and winding are unchanged. Vertices no sample constrains stay where they are (the damping holds
-them). Written here because no mesh library offers a least-squares fit of a mesh to depth maps.
+them). Copies of one point (`groups`: the surface step splits a vertex where sheets meet into one copy per
+sheet, a little apart, `dmesh.repair.separate_copies`) share one offset along one axis, that of the mesh with
+the copies joined: fitted one by one, each moved along its own sheet's normal, up to `max_offset`, far more
+than the copies' separation, and the sheets that met there crossed each other. Written here because no mesh library offers a least-squares fit of a mesh to depth maps.
 """
 from __future__ import annotations
 
@@ -115,13 +118,15 @@ def depth_residuals(points: np.ndarray, normals: np.ndarray, world_to_camera: np
 
 
 def fit_to_depth(vertices, faces, world_to_camera, fov_y_degrees: float, depth, mask,
-                 cfg: DepthFitConfig | None = None) -> tuple[np.ndarray, dict]:
+                 cfg: DepthFitConfig | None = None, groups=None) -> tuple[np.ndarray, dict]:
     """The mesh's vertices moved along their normals to fit the depth maps (module docstring).
 
     Args:
         vertices: (N, 3) floats; faces: (F, 3) ints; world_to_camera: (V, 4, 4); fov_y_degrees: the views'
             field of view; depth, mask: (V, H, H) captured depth (-z_cam, in the vertices' units) and coverage.
         cfg: `DepthFitConfig` (None: defaults).
+        groups: (N,) ints or None. Vertices with one group id (copies of one point) move by one offset along
+            one axis, so they keep their distances; None: every vertex on its own.
     Returns:
         (new (N, 3) float64 vertices, info {"fit_samples": share of samples some view measured,
         "median_offset": median |offset| of the moved vertices, "moved": vertices moved}).
@@ -147,21 +152,32 @@ def fit_to_depth(vertices, faces, world_to_camera, fov_y_degrees: float, depth, 
     measured = np.isfinite(delta)
     if not measured.any():
         return v.copy(), {"fit_samples": 0.0, "median_offset": 0.0, "moved": 0}
-    vn = vertex_axes(v, f, smooth=0.0)                                      # sign-free vertex normal axes
-    along = np.einsum("fkd,fd->fk", vn[f], fn)                              # (F, 3): m_i . n of each corner
+    if groups is None:
+        g, n = np.arange(len(v)), len(v)
+    else:
+        g = np.asarray(groups).reshape(-1)
+        if len(g) != len(v):
+            raise ValueError(f"fit_to_depth: groups has {len(g)} entries for {len(v)} vertices")
+        _, g = np.unique(g, return_inverse=True)
+        n = int(g.max()) + 1
+    fg = g[f]                                                               # the faces over the joined copies
+    joined = np.stack([np.bincount(g, v[:, k], n) for k in range(3)], 1) / np.bincount(g, minlength=n)[:, None]
+    vn = vertex_axes(joined, fg, smooth=0.0)                                # sign-free vertex normal axes
+    along = np.einsum("fkd,fd->fk", vn[fg], fn)                             # (F, 3): m_i . n of each corner
     coef = (bary * along[:, None, :]).reshape(-1, 3)[measured]
     m = int(measured.sum())
-    edges = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), 1), axis=0)
+    edges = np.unique(np.sort(np.concatenate([fg[:, [0, 1]], fg[:, [1, 2]], fg[:, [2, 0]]]), 1), axis=0)
     rows = np.concatenate([np.repeat(np.arange(m), 3), np.repeat(m + np.arange(len(edges)), 2)])
-    cols = np.concatenate([np.repeat(f, s, 0)[measured].reshape(-1), edges.reshape(-1)])
+    cols = np.concatenate([np.repeat(fg, s, 0)[measured].reshape(-1), edges.reshape(-1)])
     vals = np.concatenate([coef.reshape(-1), np.tile([cfg.smooth, -cfg.smooth], len(edges))])
-    a = csr_matrix((vals, (rows, cols)), shape=(m + len(edges), len(v)))
+    a = csr_matrix((vals, (rows, cols)), shape=(m + len(edges), n))
     x = lsqr(a, np.concatenate([delta[measured], np.zeros(len(edges))]), damp=cfg.damp)[0]
     x = np.clip(x, -cfg.max_offset, cfg.max_offset)
     moved = np.abs(x) > 0
     info = {"fit_samples": float(measured.mean()),
-            "median_offset": float(np.median(np.abs(x[moved]))) if moved.any() else 0.0, "moved": int(moved.sum())}
-    return v + x[:, None] * vn, info
+            "median_offset": float(np.median(np.abs(x[moved]))) if moved.any() else 0.0,
+            "moved": int(moved[g].sum())}
+    return v + (x[:, None] * vn)[g], info
 
 
 __all__ = ["DepthFitConfig", "fit_to_depth", "depth_residuals"]

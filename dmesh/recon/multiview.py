@@ -48,7 +48,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
 6. With `depth_fit` (not upstream): the mesh's vertices move along their normals by one least-squares fit
    of its faces to the captured depth maps (`dmesh.recon.depth_fit`), which undoes the optimisation's
-   inward bias (docs/preset_choices.md). Topology and winding are unchanged.
+   inward bias (docs/preset_choices.md). Topology and winding are unchanged; the copies the surface step
+   made of one point move together (`copy_groups`).
 
 The extraction rules are `dmesh.extract.filtered_faces` ("apex" is its "no_interior" mode). The steps run
 in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints); this module
@@ -414,24 +415,39 @@ class _Run:
                 self.pd = self.pd if self.pd is not None else self.dm.power_diagram()
                 mesh, removed = extract_filtered(self.dm, cfg.threshold, self.pd, cfg.interior, self.full,
                                                  self.consistent)
+        groups = None  # the points of the triangulation the vertices are copies of (None: each its own)
         if cfg.orient:  # the faces' closed, outward surface (dmesh.extract.surface); sheets face their cameras
             with self.clock("orient"):
+                points = np.asarray(mesh.vertices, dtype=np.float64)
                 seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
                 towards = towards_cameras((lifted_points(vw) - self.center) * self.scale, self.eyes[seen])
                 # Directions towards the cameras are not normals: on a sheet seen from both sides they point
                 # to either side patch by patch, so sheets turn whole (dmesh.repair.orient_sheets).
                 mesh = surface_of_mesh(mesh, self.pd, towards, SurfaceConfig(seed=cfg.seed, turn_faces=False))
                 info["surface"] = mesh.metadata.pop("surface")
+                if len(points) and cfg.depth_fit:
+                    groups = copy_groups(mesh.vertices, points)
         if cfg.depth_fit and len(mesh.faces):  # vertices onto the captured depth (dmesh.recon.depth_fit)
             with self.clock("depth_fit"):
                 verts, info["depth_fit"] = fit_to_depth(mesh.vertices, mesh.faces, self.w2c, vw.fov_y_degrees,
                                                         vw.depth.astype(np.float64) * self.scale, vw.mask,
-                                                        DepthFitConfig(seed=cfg.seed))
+                                                        DepthFitConfig(seed=cfg.seed), groups=groups)
                 mesh.vertices = verts
         mesh.vertices = np.asarray(mesh.vertices) / self.scale + self.center
         info.update({"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)), "points": len(self.dm),
                      "interior_removed": removed, "hidden_points": int(self.pd.hidden.sum())})
         return MultiViewResult(mesh, self.dm, self.center, self.scale, self.loop.finish(), self.loop.history, info)
+
+
+def copy_groups(vertices, points) -> np.ndarray:
+    """(V,) int: for each vertex of the surface step's mesh, the index of the extracted point it is a copy of.
+
+    The surface step gives a point where sheets meet one copy per sheet, each moved a few percent of an edge
+    into its own faces (`dmesh.repair.separate_copies`); every other vertex is one of `points` itself. So the
+    nearest of `points` is the vertex's source. `fit_to_depth` moves a group's copies together."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(np.asarray(points, dtype=np.float64)).query(np.asarray(vertices, dtype=np.float64))[1]
 
 
 @deterministic
