@@ -23,9 +23,11 @@ The fit (a Gauss-Newton step of the squared depth residual on the mesh):
 
 Topology and winding are unchanged. Vertices no sample constrains stay where they are (the damping holds
 them). Copies of one point (`groups`: the surface step splits a vertex where sheets meet into one copy per
-sheet, a little apart, `dmesh.repair.separate_copies`) share one offset along one axis, that of the mesh with
-the copies joined: fitted one by one, each moved along its own sheet's normal, up to `max_offset`, far more
-than the copies' separation, and the sheets that met there crossed each other. Written here because no mesh library offers a least-squares fit of a mesh to depth maps.
+sheet, 5 % of an edge apart, `dmesh.repair.separate_copies`) share one offset along one axis, that of the
+mesh with the copies joined: fitted one by one, each moved along its own sheet's normal, up to `max_offset`,
+far more than the copies' separation, and the sheets that met there crossed each other
+(`python -m eval.bench depth_fit_copies`). Written here because no mesh library offers a least-squares fit
+of a mesh to depth maps.
 """
 from __future__ import annotations
 

@@ -7,8 +7,8 @@ faces (`dmesh.repair.separate_copies`). For each shape the `fast` preset (`Multi
 once without its last stage on the Table 2 capture (64 views, 256 pixels, cached in `runs/paper` as the sweep
 makes it). Its mesh is then fitted both ways: with each vertex's group its nearest vertex of the mesh the surface
 step was given (`dmesh.recon.multiview.copy_groups`, as the preset does), and without groups. Figures: self-intersecting faces
-(`eval.metrics.self_intersecting_faces`, MeshLab's count) and CD p2s (x1e-3, 100K samples per side, as Table 2)
-of each, and how many vertices are copies (`split_copies`: vertices minus groups). The grouped mesh is the
+(`eval.metrics.self_intersecting_faces`, MeshLab's count) and CD p2s (x1e-3, 100K samples per side, as
+Table 2) of each, and how many vertices are copies (`split_copies`: vertices minus groups). The grouped mesh is the
 preset's own output, so its figures equal the Table 2 row of the same code.
 
 Regenerate: `python -m eval.bench depth_fit_copies` (face, bowl, mobius, plant: 8-15 minutes each on one
