@@ -2,14 +2,13 @@
 the copies of each point moving together (`fit_to_depth(groups=...)`, the preset's stage) and each vertex on
 its own (the stage until 5 December).
 
-Where sheets meet, the surface step gives each its own copy of the vertex there, 5 % of an edge into its own
-faces (`dmesh.repair.separate_copies`). For each shape the `fast` preset (`MultiViewConfig.fast()`, seed 0) runs
-once without its last stage on the Table 2 capture (64 views, 256 pixels, cached in `runs/paper` as the sweep
-makes it). Its mesh is then fitted both ways: with each vertex's group its nearest vertex of the mesh the surface
-step was given (`dmesh.recon.multiview.copy_groups`, as the preset does), and without groups. Figures: self-intersecting faces
-(`eval.metrics.self_intersecting_faces`, MeshLab's count) and CD p2s (x1e-3, 100K samples per side, as
-Table 2) of each, and how many vertices are copies (`split_copies`: vertices minus groups). The grouped mesh is the
-preset's own output, so its figures equal the Table 2 row of the same code.
+Where sheets meet, the surface step gives each its own copy of the vertex there, 5 % of an edge into its
+own faces (`dmesh.repair.separate_copies`). For each shape the `fast` preset (`MultiViewConfig.fast()`, seed
+0) runs once without its last stage on the Table 2 capture (64 views, 256 pixels, cached in `runs/paper`).
+Its mesh is fitted both ways: grouped by `dmesh.recon.multiview.copy_groups` (as the preset does) and
+ungrouped. Figures: self-intersecting faces (`eval.metrics.self_intersecting_faces`, MeshLab's count), CD p2s
+(x1e-3, 100K samples per side, as Table 2), and `split_copies` (vertices minus groups). The grouped mesh is
+the preset's own output, so its figures equal the Table 2 row of the same code.
 
 Regenerate: `python -m eval.bench depth_fit_copies` (face, bowl, mobius, plant: 8-15 minutes each on one
 core; `--quick`: the face only).
