@@ -163,3 +163,39 @@ def test_groups_must_match_the_vertices(ball):
     with pytest.raises(ValueError, match="groups has 3 entries"):
         fit_to_depth(np.asarray(mesh.vertices), mesh.faces, w2c, vw.fov_y_degrees, vw.depth.astype(np.float64),
                      vw.mask, groups=[0, 1, 2])
+
+
+def test_offsets_that_make_faces_cross_go_back():
+    """A floor (two triangles at z = 0), a wall standing 0.005 above it, and a triangle far away, each pushed
+    down by the fit: the wall's foot through the floor. Its offsets and the floor's shrink until no face
+    crosses another (half of them do: the foot then stays 0.004 above the floor), the far triangle keeps its
+    own; with the wall lifted instead nothing is held back."""
+    from dmesh.recon.depth_fit import undo_crossings
+    from dmesh.repair import FaceIndex
+
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0],            # the floor
+                  [-0.3, 0, 0.005], [0.3, 0, 0.005], [0, 0, 1],              # the wall
+                  [5, 5, 0], [6, 5, 0], [5, 6, 0]], dtype=np.float64)          # far away
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [7, 8, 9]])
+    axes = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    groups = np.arange(len(v))
+    x = np.array([-0.002] * 4 + [-0.01, -0.01, 0.0] + [-0.004] * 3)
+    assert FaceIndex(v + x[:, None] * axes, f).crossing(f).sum() == 3   # the wall and both floor faces
+    restored = undo_crossings(v, f, x, axes, groups)
+    assert restored == 6 and np.allclose(x[:6], [-0.001] * 4 + [-0.005] * 2) and np.all(x[7:] == -0.004)
+    assert not FaceIndex(v + x[:, None] * axes, f).crossing(f).any()
+    harmless = np.array([-0.002] * 4 + [0.01, 0.01, 0.0] + [-0.004] * 3)   # the wall lifted instead
+    kept = harmless.copy()
+    assert undo_crossings(v, f, kept, axes, groups) == 0 and np.array_equal(kept, harmless)
+
+
+def test_crossings_the_mesh_had_before_the_fit_stay_its_own():
+    """A wall through the floor before the fit: the fit's offsets elsewhere are kept (it made no crossing)."""
+    from dmesh.recon.depth_fit import undo_crossings
+
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0],
+                  [-0.3, 0, -0.2], [0.3, 0, -0.2], [0, 0, 1]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]])
+    x = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.003])
+    assert undo_crossings(v, f, x, np.tile([0.0, 0.0, 1.0], (len(v), 1)), np.arange(len(v))) == 0
+    assert x[6] == 0.003

@@ -1,17 +1,20 @@
-"""The depth fit's copy groups: one final state of the multi-view `fast` preset fitted to its depth maps with
-the copies of each point moving together (`fit_to_depth(groups=...)`, the preset's stage) and each vertex on
-its own (the stage until 5 December).
+"""The depth fit's copy groups and its undoing of crossings: one final state of the multi-view `fast` preset
+fitted to its depth maps three ways: each vertex on its own (`ungrouped`, the stage until 5 December 2026
+morning), the copies of each point moving together (`grouped`, `fit_to_depth(groups=...)`), and grouped with
+the offsets that make faces cross shrunk until they do not (`uncrossed`, `DepthFitConfig.uncross`, the
+preset's stage since 5 December 2026).
 
 Where sheets meet, the surface step gives each its own copy of the vertex there, 5 % of an edge into its
 own faces (`dmesh.repair.separate_copies`). For each shape the `fast` preset (`MultiViewConfig.fast()`, seed
 0) runs once without its last stage on the Table 2 capture (64 views, 256 pixels, cached in `runs/paper`).
-Its mesh is fitted both ways: grouped by `dmesh.recon.multiview.copy_groups` (as the preset does) and
-ungrouped. Figures: self-intersecting faces (`eval.metrics.self_intersecting_faces`, MeshLab's count), CD p2s
-(x1e-3, 100K samples per side, as Table 2), and `split_copies` (vertices minus groups). The grouped mesh is
-the preset's own output, so its figures equal the Table 2 row of the same code.
+Its mesh is fitted the three ways; groups come from `dmesh.recon.multiview.copy_groups` (as the preset
+does). Figures: self-intersecting faces (`eval.metrics.self_intersecting_faces`, MeshLab's count; also of
+the mesh before the fit), CD p2s (x1e-3, 100K samples per side, as Table 2), `split_copies` (vertices minus
+groups) and `held_back` (vertices whose offsets `undo_crossings` shrank). The `uncrossed` mesh is the
+preset's own output, so its figures equal the Table 2 row of the same code.
 
-Regenerate: `python -m eval.bench depth_fit_copies` (face, bowl, mobius, plant: 8-15 minutes each on one
-core; `--quick`: the face only).
+Regenerate: `python -m eval.bench depth_fit_copies` (face, bowl, mobius, plant, mushroom: 8-15 minutes each
+on one core; `--quick`: the face only).
 """
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ import numpy as np
 from eval.bench.common import markdown_table, write_report
 
 WORK = "runs/paper"  # the input cache of `dmesh reproduce-tables`
-SHAPES = ("open/face.off", "bowl", "mobius", "plant")
+SHAPES = ("open/face.off", "bowl", "mobius", "plant", "mushroom")
 SETTINGS = {"views": 64, "resolution": 256, "distance": 2.0, "radius": 1.0}
 
 
@@ -73,12 +76,16 @@ def one_shape(shape: str) -> dict:
     groups = multiview.copy_groups(v, given[-1])
     row = {"shape": shape, "class": category, "faces": len(f), "vertices": len(v),
            "split_copies": int(len(v) - len(np.unique(groups))), "run_s": run_s}
-    for name, g in (("grouped", groups), ("ungrouped", None)):
-        fitted, _ = fit_to_depth(v, f, w2c, vw.fov_y_degrees, vw.depth.astype(np.float64) * scale, vw.mask,
-                                 DepthFitConfig(seed=0), groups=g)
+    for name, g, uncross in (("ungrouped", None, False), ("grouped", groups, False),
+                             ("uncrossed", groups, True)):
+        fitted, info = fit_to_depth(v, f, w2c, vw.fov_y_degrees, vw.depth.astype(np.float64) * scale, vw.mask,
+                                    DepthFitConfig(seed=0, uncross=uncross), groups=g)
         mesh = trimesh.Trimesh(fitted / scale + center, f, process=False)
         row[f"self_int_{name}"] = self_intersecting_faces(mesh.vertices, mesh.faces)
         row[f"cd_p2s_{name}"] = chamfer_l1_p2s(mesh, gt, n=100_000)
+    row["held_back"] = info["restored"]
+    unfitted = trimesh.Trimesh(v / scale + center, f, process=False)
+    row["self_int_unfitted"] = self_intersecting_faces(unfitted.vertices, unfitted.faces)
     return row
 
 
@@ -87,13 +94,15 @@ def main(out: str = "reports", quick: bool = False) -> None:
     for shape in SHAPES[:1] if quick else SHAPES:
         table.append(one_shape(shape))
         r = table[-1]
-        print(f"{shape}: self-intersecting faces {r['self_int_ungrouped']} -> {r['self_int_grouped']}, CD p2s "
-              f"{r['cd_p2s_ungrouped'] * 1e3:.3f} -> {r['cd_p2s_grouped'] * 1e3:.3f} (x1e-3)", flush=True)
-    shown = [{**r, **{k: r[k] * 1e3 for k in ("cd_p2s_grouped", "cd_p2s_ungrouped")}} for r in table]
-    cols = ["shape", "class", "faces", "vertices", "split_copies", "self_int_ungrouped", "self_int_grouped",
-            "cd_p2s_ungrouped", "cd_p2s_grouped", "run_s"]
+        print(f"{shape}: self-intersecting faces {r['self_int_ungrouped']} -> {r['self_int_grouped']} -> "
+              f"{r['self_int_uncrossed']}, CD p2s {r['cd_p2s_ungrouped'] * 1e3:.3f} -> "
+              f"{r['cd_p2s_grouped'] * 1e3:.3f} -> {r['cd_p2s_uncrossed'] * 1e3:.3f} (x1e-3)", flush=True)
+    cds = ("cd_p2s_ungrouped", "cd_p2s_grouped", "cd_p2s_uncrossed")
+    shown = [{**r, **{k: r[k] * 1e3 for k in cds}} for r in table]
+    cols = ["shape", "class", "faces", "vertices", "split_copies", "self_int_unfitted", "self_int_ungrouped",
+            "self_int_grouped", "self_int_uncrossed", *cds, "held_back", "run_s"]
     intro = (__doc__.split("\n\n")[0] + "\n\n" + __doc__.split("\n\n")[1] + "\n\nCD p2s in the table is x1e-3 "
              "(the CSV holds raw distances); `run_s`: the preset's wall seconds without the fit.")
-    write_report(out, "bench_depth_fit_copies", "The depth fit's copy groups", intro,
-                 markdown_table(shown, cols, {"cd_p2s_grouped": ".3f", "cd_p2s_ungrouped": ".3f", "run_s": ".0f"}),
+    write_report(out, "bench_depth_fit_copies", "The depth fit's copy groups and crossings", intro,
+                 markdown_table(shown, cols, {**{k: ".3f" for k in cds}, "run_s": ".0f"}),
                  table)
