@@ -84,3 +84,12 @@ def write_report(out: str | Path, name: str, title: str, intro: str, table: str,
         w.writerows(rows)
     write_text(out / f"{name}.csv", buf.getvalue())
     return out / f"{name}.md"
+
+
+def write_cd_report(out: str | Path, name: str, title: str, doc: str, rows: list[dict], cols: list[str],
+                    fmt: dict) -> Path:
+    """`write_report` for rows holding a raw `cd_p2s`: the table shows it x1e-3 (the CSV keeps raw distances)
+    and the intro is the first two paragraphs of `doc` (a bench module's docstring)."""
+    shown = [{**r, "cd_p2s": r["cd_p2s"] * 1e3} for r in rows]
+    intro = "\n\n".join(doc.split("\n\n")[:2]) + "\n\nCD p2s in the table is x1e-3 (the CSV holds raw distances)."
+    return write_report(out, name, title, intro, markdown_table(shown, cols, {"cd_p2s": ".3f", **fmt}), rows)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 
-from eval.bench.common import markdown_table, write_report
+from eval.bench.common import write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweeps
 SHAPES = ("flag_box", "wavy_sheet", "plant")
@@ -60,9 +60,7 @@ def main(out: str = "reports", quick: bool = False) -> None:
             r = table[-1]
             print(f"{shape}: {n} lifted pixels: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, {r['components']} components, "
                   f"{r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
-    shown = [{**r, "cd_p2s": r["cd_p2s"] * 1e3} for r in table]
     cols = ["shape", "class", "depth_noise", "init_points", "cd_p2s", "faces", "boundary_edges", "components",
             "seconds"]
-    intro = "\n\n".join(__doc__.split("\n\n")[:2]) + "\n\nCD p2s in the table is x1e-3 (the CSV holds raw distances)."
-    write_report(out, "bench_noisy_depth_seeds", "Seeds of the depth start on noisy depth maps", intro,
-                 markdown_table(shown, cols, {"cd_p2s": ".3f", "seconds": ".0f"}), table)
+    write_cd_report(out, "bench_noisy_depth_seeds", "Seeds of the depth start on noisy depth maps", __doc__, table,
+                    cols, {"seconds": ".0f"})

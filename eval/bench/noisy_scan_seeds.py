@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from eval.bench.common import markdown_table, write_report
+from eval.bench.common import write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweep
 SHAPES = ("torus", "genus2", "bowl", "wavy_sheet", "plant", "flag_box")
@@ -62,9 +62,7 @@ def main(out: str = "reports", quick: bool = False) -> None:
             r = table[-1]
             print(f"{shape}: {preset}, {seeds} seeds: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, {r['components']} "
                   f"components, {r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
-    shown = [{**r, "cd_p2s": r["cd_p2s"] * 1e3} for r in table]
     cols = ["shape", "class", "preset", "seeds", "noise_ratio", "smooth_k", "cd_p2s", "faces", "boundary_edges",
             "components", "seconds"]
-    intro = "\n\n".join(__doc__.split("\n\n")[:2]) + "\n\nCD p2s in the table is x1e-3 (the CSV holds raw distances)."
-    write_report(out, "bench_noisy_scan_seeds", "Seeds and smoothing on the realistic scan", intro,
-                 markdown_table(shown, cols, {"cd_p2s": ".3f", "noise_ratio": ".3f", "seconds": ".0f"}), table)
+    write_cd_report(out, "bench_noisy_scan_seeds", "Seeds and smoothing on the realistic scan", __doc__, table, cols,
+                    {"noise_ratio": ".3f", "seconds": ".0f"})
