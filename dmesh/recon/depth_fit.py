@@ -195,8 +195,8 @@ def undo_crossings(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, axes:
 
     Why: a copy group moves rigidly, but the other vertices of the tiny pieces that meet at it do not, so a
     fit of up to `max_offset` can push one piece through its neighbour where the mesh was folded tight.
-    Halving keeps as much of the fit as the crossing allows (on the bowl of Table 2, CD p2s +1.6 % where
-    putting the vertices back costs +3.8 %); an offset below 1e-3 of the largest becomes 0. Each round
+    Halving keeps as much of the fit as the crossing allows (`python -m eval.bench depth_fit_copies`); an
+    offset below 1e-3 of the largest becomes 0. Each round
     shrinks a moved vertex of every new crossing pair (a pair that did not cross with no vertex moved has
     one), so the loop ends, at worst at the unfitted mesh."""
     from dmesh.repair import FaceIndex

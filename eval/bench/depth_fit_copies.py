@@ -1,8 +1,7 @@
 """The depth fit's copy groups and its undoing of crossings: one final state of the multi-view `fast` preset
-fitted to its depth maps three ways: each vertex on its own (`ungrouped`, the stage until 5 December 2026
-morning), the copies of each point moving together (`grouped`, `fit_to_depth(groups=...)`), and grouped with
-the offsets that make faces cross shrunk until they do not (`uncrossed`, `DepthFitConfig.uncross`, the
-preset's stage since 5 December 2026).
+fitted to its depth maps three ways: each vertex on its own (`ungrouped`), the copies of each point moving
+together (`grouped`, `fit_to_depth(groups=...)`), and grouped with the offsets that make faces cross shrunk
+until they do not (`uncrossed`, `DepthFitConfig.uncross`, the preset's own stage).
 
 Where sheets meet, the surface step gives each its own copy of the vertex there, 5 % of an edge into its
 own faces (`dmesh.repair.separate_copies`). For each shape the `fast` preset (`MultiViewConfig.fast()`, seed

@@ -1,10 +1,9 @@
 """Seeds on noisy point clouds: the point-cloud `fast` preset (which smooths an input that looks noisy by
 itself) with its default 100K seeds and with 20K and 10K, on the robustness sweep's noisy clouds.
 
-Why: at 0.25-1 % noise, `fast`'s meshes of open and mixed shapes come out in thousands of pieces (wavy sheet
-at 1 %: 4126 components, 80K boundary edges of 163K faces) while their CD holds: after the jet smoothing the
-points still lie off the surface by about a seed spacing, so the one-sheet extraction finds no coherent
-sheet. Fewer seeds, farther apart than the remaining noise, give a sheet. For each shape and noise level the
+Why: on noisy clouds `fast`'s meshes can come out in many pieces while their CD holds: after the jet
+smoothing the points may still lie off the surface by about a seed spacing, so the one-sheet extraction finds
+no coherent sheet. Fewer seeds, farther apart than the remaining noise, give a sheet. For each shape and noise level the
 preset (`PointCloudConfig.fast(num_init=...)`, seed 0, with the input normals, as the harness runs it) runs on
 the cached input of `eval/sweeps/robustness.yaml` (100K points, Gaussian noise of sigma x the unit radius;
 made as the sweep makes it, in `runs/paper`). Figures: the input's `noise_ratio` (before smoothing: distance
