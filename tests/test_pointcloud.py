@@ -466,6 +466,63 @@ def test_smoothing_takes_the_noise_out_of_a_noisy_cloud(caplog):
             PointCloudConfig(auto_smooth_k=bad)
 
 
+def test_a_smoothed_input_gives_at_most_smoothed_seeds():
+    """`smoothed_seeds`: an input that was smoothed (`smooth_k`, or `auto_smooth_k` on a noisy cloud) gives at
+    most that many real seeds; an unsmoothed one every `num_init`. The `fast` and `noisy` presets cap at
+    `SMOOTHED_SEEDS`, the paper's recipe does not cap."""
+    from dmesh.recon.config import SMOOTHED_SEEDS
+
+    gt, pts, nrm = _shape_cloud("sphere", 20_000)
+    noisy = pts + np.random.default_rng(2).normal(scale=0.01, size=pts.shape)
+    cfg = PointCloudConfig.tiny(steps_phase1=0, steps_phase2=0, num_init=3000, smoothed_seeds=1000)
+    assert reconstruct(noisy, nrm, dataclasses.replace(cfg, smooth_k=60)).info["real_seeds"] == 1000
+    auto = reconstruct(noisy, nrm, dataclasses.replace(cfg, auto_smooth_k=60))
+    assert (auto.info["smooth_k"], auto.info["real_seeds"]) == (60, 1000)
+    clean = reconstruct(pts, nrm, dataclasses.replace(cfg, auto_smooth_k=60))
+    assert (clean.info["smooth_k"], clean.info["real_seeds"]) == (0, 3000)
+    assert reconstruct(noisy, nrm, dataclasses.replace(cfg, smoothed_seeds=0)).info["real_seeds"] == 3000
+    assert PointCloudConfig.fast().smoothed_seeds == SMOOTHED_SEEDS == PointCloudConfig.noisy().smoothed_seeds
+    assert PointCloudConfig.paper().smoothed_seeds == 0
+    with pytest.raises(ValueError, match="smoothed_seeds"):
+        PointCloudConfig(smoothed_seeds=-1)
+
+
+def test_fast_makes_a_shredded_mesh_again_from_the_smoothed_input(caplog):
+    """`redo_fragmented` (the `fast` preset's): Gaussian noise of 0.3 % of the radius on a 20K-point torus
+    measures under `NOISY_RATIO`, so one pass does not smooth it, and its mesh comes out in shreds (more than
+    `FRAGMENTED_BOUNDARY` boundary edges per face). `fast` then makes it again from the smoothed input: the
+    mesh is the `noisy` preset's (watertight here), closer to the torus, and the info keeps the first attempt.
+    The clean sample is made once."""
+    from dmesh.recon.config import FRAGMENTED_BOUNDARY
+    from dmesh.recon.init import NOISY_RATIO
+    from dmesh.repair import boundary_edge_count
+
+    gt, pts, nrm = _shape_cloud("torus", 20_000)
+    noisy = pts + np.random.default_rng(2).normal(scale=0.003, size=pts.shape)
+    once = reconstruct(noisy, nrm, PointCloudConfig.fast(redo_fragmented=0.0))
+    with caplog.at_level("WARNING", logger="dmesh.recon.pointcloud"):
+        redone = reconstruct(noisy, nrm, PointCloudConfig.fast())
+    assert "came out in shreds" in caplog.text
+    noisy_preset = reconstruct(noisy, nrm, PointCloudConfig.noisy())
+    assert once.info["noise_ratio"] < NOISY_RATIO and once.info["smooth_k"] == 0
+    per_face = boundary_edge_count(once.mesh.faces) / len(once.mesh.faces)
+    assert per_face > FRAGMENTED_BOUNDARY
+    attempt = redone.info["fragmented_attempt"]
+    assert attempt["boundary_edges_per_face"] == pytest.approx(per_face, abs=1e-4)
+    assert attempt["faces"] == len(once.mesh.faces) and attempt["seconds"] < redone.timings["total"]
+    assert redone.info["smooth_k"] == PointCloudConfig.fast().auto_smooth_k
+    np.testing.assert_array_equal(redone.mesh.faces, noisy_preset.mesh.faces)
+    np.testing.assert_array_equal(redone.mesh.vertices, noisy_preset.mesh.vertices)
+    check_closed(np.asarray(redone.mesh.faces), np.asarray(redone.mesh.vertices))
+    cd_once, _ = _p2s_and_self_intersections(once.mesh, gt)
+    cd_redone, _ = _p2s_and_self_intersections(redone.mesh, gt)
+    assert cd_redone < 0.6 * cd_once, (cd_once, cd_redone)
+    clean = reconstruct(pts, nrm, PointCloudConfig.fast())
+    assert "fragmented_attempt" not in clean.info and clean.info["smooth_k"] == 0
+    with pytest.raises(ValueError, match="redo_fragmented"):
+        PointCloudConfig(redo_fragmented=-0.1)
+
+
 def test_phase2_ends_once_the_mesh_has_settled():
     """`phase2_patience`: phase 2 stops after that many steps without a change of the mesh, and the mesh is
     the one a run of every phase-2 step ends with (here the mesh settles and stays)."""

@@ -25,6 +25,10 @@ NOISY_SMOOTH_K = 120
 #: Real seeds of the `fast` preset: every point of a cloud up to this size (a random subset of a larger one);
 #: why: docs/preset_choices.md.
 FAST_SEEDS = 100_000
+#: Most real seeds of the `fast` and `noisy` presets when they smooth their input; why: docs/preset_choices.md.
+SMOOTHED_SEEDS = 20_000
+#: Boundary edges per face above which `fast` takes its unsmoothed output for a sign of missed noise.
+FRAGMENTED_BOUNDARY = 0.1
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
 
@@ -101,6 +105,12 @@ class PointCloudConfig(Presets):
     auto_smooth_k: int = 0          # > 0 and smooth_k 0: smooth with this many neighbours only when the input
                                     # looks noisy (noise_ratio above dmesh.recon.init.NOISY_RATIO); 0: off
     num_init: int = 10_000          # input points used as real seeds
+    smoothed_seeds: int = 0         # > 0: at most this many seeds when the input was smoothed (not upstream):
+                                    # smoothed points still lie about a seed spacing off the surface at dense
+                                    # seeding, and the mesh falls apart; 0: num_init always
+    redo_fragmented: float = 0.0    # > 0 with auto_smooth_k: an unsmoothed run whose mesh has more boundary edges
+                                    # than this many per face is run again smoothed (not upstream: noise that
+                                    # noise_ratio missed shreds the mesh); 0: off
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
     voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
     carve: float = 0.0              # > 0: imaginary points on first-mesh faces this many seed spacings from
@@ -145,6 +155,8 @@ class PointCloudConfig(Presets):
     seed: int = 0                   # seed of every random choice
 
     def __post_init__(self):
+        if int(self.smoothed_seeds) < 0:
+            raise ValueError(f"PointCloudConfig.smoothed_seeds must be >= 0 (0: off), got {self.smoothed_seeds}")
         ints = ("num_init", "num_target", "num_samples", "k_max", "knn_k")
         for name in ints:
             if int(getattr(self, name)) < 1:
@@ -160,8 +172,8 @@ class PointCloudConfig(Presets):
         for name in ("lr", "update_bound", "max_real", "domain", "alpha_wdt", "alpha_real"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PointCloudConfig.{name} must be positive, got {getattr(self, name)}")
-        for name in ("outlier_std", "carve", "lambda_weight", "lambda_real_start", "lambda_real_end",
-                     "lambda_quality", "lambda_normal", "prob_threshold", "mass_tol"):
+        for name in ("outlier_std", "redo_fragmented", "carve", "lambda_weight", "lambda_real_start",
+                     "lambda_real_end", "lambda_quality", "lambda_normal", "prob_threshold", "mass_tol"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
         from dmesh.extract import MODES
@@ -196,10 +208,13 @@ class PointCloudConfig(Presets):
         vertices, faces far from the input
         carved (`carve_far_faces`, for holes and open borders), no gradient step (at this density the
         steps cost accuracy), one-sheet extraction (`dmesh.extract`). An input that looks noisy
-        (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`); clean
-        input is not. Why each choice: docs/preset_choices.md; why no phase-1 step: `python -m eval.bench
-        recipes`."""
+        (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`), and then
+        gives at most 20K seeds (`smoothed_seeds`); clean input is not smoothed. An unsmoothed run whose mesh
+        comes out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face, noise that `noise_ratio`
+        missed) is run again smoothed (`redo_fragmented`). Why each choice: docs/preset_choices.md; why no
+        phase-1 step: `python -m eval.bench recipes`."""
         base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=FAST_SEEDS, voronoi="poles",
+                    smoothed_seeds=SMOOTHED_SEEDS, redo_fragmented=FRAGMENTED_BOUNDARY,
                     carve=5.0, max_voronoi=None,
                     num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=0, k_max=16,
                     lambda_weight=0.0, real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
@@ -211,7 +226,8 @@ class PointCloudConfig(Presets):
         outlier filter every point moves onto the quadratic jet fitted to its 120 nearest neighbours
         (`smooth_k`, CGAL's jet smoothing), which takes most of the noise off the surface normal. On clean
         input the smoothing rounds curved parts and costs accuracy, so `fast` smooths only input that looks
-        noisy; this preset is for noise that `fast`'s measurement misses. Measurements: `reports/robustness.md`
+        noisy; this preset is for noise that `fast`'s measurement misses. Like `fast` on smoothed input, at
+        most 20K seeds (`smoothed_seeds`). Measurements: `reports/robustness.md`
         (the robustness sweep); the choice of k: docs/preset_choices.md."""
         return cls.fast(**{**dict(smooth_k=NOISY_SMOOTH_K, auto_smooth_k=0), **overrides})
 
@@ -245,12 +261,14 @@ POINTCLOUD_RECIPES = {
                     "CPU kernels."),
     "fast": (False, "an initialisation, no phase-1 step: stray input points dropped and, when the input looks "
                     "noisy, the rest smoothed as `noisy` does (both not upstream), up to 100K seeds (every point of a "
-                    "100K-point cloud) + their poles (not all Voronoi vertices), faces far from the input carved, "
-                    "no gradient step, one-sheet extraction. Differs: no optimisation (none of the paper's 1500 "
-                    "steps), 10x the seeds."),
+                    "100K-point cloud; 20K when smoothed) + their poles (not all Voronoi vertices), faces far from "
+                    "the input carved, no gradient step, one-sheet extraction; a mesh that comes out in shreds "
+                    "(unseen noise) is made again from the smoothed input. Differs: no optimisation (none of the "
+                    "paper's 1500 steps), 10x the seeds (2x when smoothed)."),
     "noisy": (False, "not in the paper, for noisy scans: the `fast` preset (no phase-1 step) with its input "
                      "always smoothed after the outlier filter (every point moved onto the quadratic jet of its 120 "
-                     "nearest neighbours, CGAL's jet smoothing), where `fast` smooths only input that looks noisy. "
+                     "nearest neighbours, CGAL's jet smoothing) and at most 20K seeds, where `fast` smooths only "
+                     "input that looks noisy. "
                      "On clean input it is several times worse than `fast`."),
     "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
 }

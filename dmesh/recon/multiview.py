@@ -109,9 +109,10 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid start refined
     through the images (see `MultiViewConfig.depth`).
 
-    "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), each of its
-    points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the lifted pixels
-    (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
+    "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), at most
+    `cfg.init_smoothed_points` of it are kept (as a smoothed point cloud gives at most `smoothed_seeds` seeds)
+    and each of its points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the
+    lifted pixels (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
     the subset, and the fit averages that many more noisy depths over the same patch than the point-cloud
     `noisy` preset's smoothing of the subset alone (which "auto" takes when `init_pool_k` is 0)."""
     from dmesh.recon.config import PointCloudConfig
@@ -124,6 +125,8 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     preset, ratio = depth_start_preset(pts, cfg.init_preset)
     pooled = cfg.init_preset == "auto" and preset == "noisy" and cfg.init_pool_k > 0
     if pooled:
+        if len(pts) > cfg.init_smoothed_points:
+            pts = pts[np.sort(rng.choice(len(pts), int(cfg.init_smoothed_points), replace=False))]
         k = min(int(cfg.init_pool_k), len(pixels))
         log.info("depth start: the %d points fitted from their %d nearest of %d lifted pixels", len(pts), k,
                  len(pixels))

@@ -15,9 +15,10 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    looks noisy gets a warning naming the `noisy` preset. info["noise_ratio"] holds the figure and
    info["smooth_k"] the neighbours used (0: not smoothed).
 1. Normalise the input (mean to the origin, max norm 1); keep `num_target` of the points as the Chamfer
-   target; initialise from `num_init` seeds (real) plus their Voronoi vertices in [-1, 1]^3 (imaginary),
-   plus the 8 corners of [-1.25, 1.25]^3 (imaginary, also in the seeds' triangulation; they keep it
-   three-dimensional for flat inputs and the surface away from the hull), all weights 1.
+   target; initialise from `num_init` seeds (real; of smoothed input at most `smoothed_seeds`, not upstream)
+   plus their Voronoi vertices in [-1, 1]^3 (imaginary), plus the 8 corners of [-1.25, 1.25]^3 (imaginary,
+   also in the seeds' triangulation; they keep it three-dimensional for flat inputs and the surface away from
+   the hull), all weights 1.
 2. Phase 1 (`steps_phase1`): every step re-triangulates and scores the WDT faces and the candidates
    (`DMesh.face_probabilities`), samples the probable faces, and minimises expected Chamfer + weight, real
    (ramped) and quality regularisers over positions, weights and reals with `BoundedAdam`.
@@ -29,6 +30,11 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
 4. The mesh: faces of the final WDT whose three real values exceed `threshold` (`extraction`); with
    `orient`, their closed, outward surface (`dmesh.extract.surface`: tets inside / outside, small holes
    filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
+5. With `redo_fragmented` > 0 and `auto_smooth_k` > 0 (not upstream; the `fast` preset): a run that did not
+   smooth its input and whose mesh has more than `redo_fragmented` boundary edges per face (noise that
+   `noise_ratio` missed: the mesh is in shreds) is done again with the input smoothed (`auto_smooth_k`
+   neighbours, `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
+   timings' "total" includes it.
 
 The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
 this module supplies each phase's step function (`_Run.phase1_step`, `_Run.phase2_step`).
@@ -38,6 +44,7 @@ the optimiser, the Chamfer k, the RNG and the phase's candidate faces and neighb
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from dataclasses import dataclass
@@ -57,6 +64,7 @@ from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_a
 from dmesh.recon.loop import (Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
+from dmesh.repair import boundary_edge_count
 from dmesh.tolerances import DIVISION_FLOOR
 
 log = logging.getLogger(__name__)
@@ -111,7 +119,7 @@ class _Run:
         self.cfg, self.nrm_in = cfg, nrm_in
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
-        self.chamfer = None
+        self.chamfer, self.smoothed = None, False
         if probe is not None:  # the probe also gets the frame, which the input filters may have moved
             every, fn = probe
             probe = (every, lambda params, record: fn({**params, "center": self.center, "scale": self.scale}, record))
@@ -139,6 +147,7 @@ class _Run:
                          "(median; clean samples of smooth surfaces lie under %.2f): smoothing it (%d neighbours)",
                          info["noise_ratio"], NOISY_RATIO, k)
             info["smooth_k"] = int(k)
+            self.smoothed = k > 0
             if k > 0:
                 pts = smooth_points(pts, min(k, len(pts) - 1), workers=cfg.workers)
             elif info["noise_ratio"] > NOISY_RATIO:
@@ -164,7 +173,10 @@ class _Run:
             tidx = rng.choice(len(pts), cfg.num_target, replace=False) if cfg.num_target < len(pts) else None
             target = pts if tidx is None else pts[tidx]
             target_n = None if nrm_in is None else (nrm_in if tidx is None else nrm_in[tidx])
-            positions, reals = seeds_and_voronoi(pts, cfg.num_init, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
+            seeds = cfg.num_init
+            if self.smoothed and cfg.smoothed_seeds > 0:
+                seeds = min(seeds, cfg.smoothed_seeds)
+            positions, reals = seeds_and_voronoi(pts, seeds, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
                                                  vertices=cfg.voronoi)
             carved = 0
             if cfg.carve > 0:
@@ -314,6 +326,27 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         raise ValueError("lambda_normal > 0 needs normals")
     if cfg.tangent_weight < 1.0 and nrm_in is None:
         raise ValueError("tangent_weight < 1 needs normals")
+    result = _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe)
+    if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0:
+        faces = np.asarray(result.mesh.faces)
+        per_face = boundary_edge_count(faces) / max(len(faces), 1)
+        if per_face > cfg.redo_fragmented:
+            log.warning("the mesh came out in shreds (%.2f boundary edges per face; over %.2f): the input is "
+                        "noisier than it measured (%.3f), making it again from the smoothed input (%d neighbours)",
+                        per_face, cfg.redo_fragmented, result.info["noise_ratio"], cfg.auto_smooth_k)
+            first = {"boundary_edges_per_face": round(float(per_face), 4), "faces": int(len(faces)),
+                     "seconds": result.timings.get("total")}
+            spent = {key: float(result.timings.get(key, 0.0)) for key in ("total", "total_cpu")}
+            smoothed = dataclasses.replace(cfg, smooth_k=cfg.auto_smooth_k, auto_smooth_k=0, redo_fragmented=0.0)
+            result = _reconstruct_once(pts_in, nrm_in, smoothed, callback, state_path, probe)
+            result.info["fragmented_attempt"] = first
+            for key, seconds in spent.items():
+                result.timings[key] = result.timings.get(key, 0.0) + seconds
+    return result
+
+
+def _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe) -> PointCloudResult:
+    """One pass of the procedure's steps 0-4 on checked input."""
     run = _Run(pts_in, nrm_in, cfg, callback, state_path, probe)  # its clock and resume key: the raw input
     pts_in, _, cleaning = run.clean_input(pts_in, nrm_in)
     info = run.setup(pts_in)

@@ -1,16 +1,17 @@
 """Seeds on noisy point clouds: the point-cloud `fast` preset (which smooths an input that looks noisy by
-itself) with its default 100K seeds and with 20K and 10K, on the robustness sweep's noisy clouds.
+itself) with the seeds of a smoothed input capped at 100K (every point: the preset before the cap), 20K (its
+default, `smoothed_seeds`) and 10K, on the robustness sweep's noisy clouds.
 
-Why: on noisy clouds `fast`'s meshes can come out in many pieces while their CD holds: after the jet
-smoothing the points may still lie off the surface by about a seed spacing, so the one-sheet extraction finds
-no coherent sheet. Fewer seeds, farther apart than the remaining noise, give a sheet. For each shape and noise level the
-preset (`PointCloudConfig.fast(num_init=...)`, seed 0, with the input normals, as the harness runs it) runs on
-the cached input of `eval/sweeps/robustness.yaml` (100K points, Gaussian noise of sigma x the unit radius;
-made as the sweep makes it, in `runs/paper`). Figures: the input's `noise_ratio` (before smoothing: distance
-to the local plane in neighbour spacings), CD p2s (x1e-3, 100K samples per side, as the tables), faces,
-boundary edges, connected components, and seconds.
+Why: on noisy clouds `fast`'s meshes came out in many pieces while their CD held: after the jet smoothing
+the points may still lie off the surface by about a seed spacing, so the one-sheet extraction finds no
+coherent sheet. Fewer seeds, farther apart than the remaining noise, give a sheet. For each shape and noise
+level the preset (`PointCloudConfig.fast(smoothed_seeds=...)`, seed 0, with the input normals, as the harness
+runs it) runs on the cached input of `eval/sweeps/robustness.yaml` (100K points, Gaussian noise of sigma x
+the unit radius; made as the sweep makes it, in `runs/paper`). Figures: the input's `noise_ratio` (before
+smoothing: distance to the local plane in neighbour spacings), whether the run smoothed (`smooth_k`), CD p2s
+(x1e-3, 100K samples per side, as the tables), faces, boundary edges, connected components, and seconds.
 
-Regenerate: `python -m eval.bench noisy_seeds` (54 runs, about 30 minutes on one core; `--quick`: the wavy
+Regenerate: `python -m eval.bench noisy_seeds` (54 runs, about 20 minutes on one core; `--quick`: the wavy
 sheet at 1 % only).
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ def _cloud(shape: str, noise: float):
 
 
 def one_run(shape: str, noise: float, seeds: int) -> dict:
+    """One row: `fast` with `smoothed_seeds=seeds` on the noisy cloud of `shape`."""
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.init import noise_ratio
     from dmesh.recon.pointcloud import reconstruct
@@ -47,13 +49,13 @@ def one_run(shape: str, noise: float, seeds: int) -> dict:
 
     points, normals, gt_path, category = _cloud(shape, noise)
     t0 = time.perf_counter()
-    res = reconstruct(points, normals, PointCloudConfig.fast(num_init=seeds, seed=0))
+    res = reconstruct(points, normals, PointCloudConfig.fast(smoothed_seeds=seeds, seed=0))
     seconds = time.perf_counter() - t0
     stats = mesh_stats(res.mesh, self_intersections=False)
     return {"shape": shape, "class": category, "noise": noise, "noise_ratio": noise_ratio(points),
-            "seeds": seeds, "cd_p2s": chamfer_l1_p2s(res.mesh, load_gt(gt_path), n=100_000),
-            "faces": stats["faces"], "boundary_edges": stats["boundary_edges"],
-            "components": stats["components"], "seconds": seconds}
+            "smoothed_seeds": seeds, "smooth_k": res.info["smooth_k"],
+            "cd_p2s": chamfer_l1_p2s(res.mesh, load_gt(gt_path), n=100_000), "faces": stats["faces"],
+            "boundary_edges": stats["boundary_edges"], "components": stats["components"], "seconds": seconds}
 
 
 def main(out: str = "reports", quick: bool = False) -> None:
@@ -63,9 +65,9 @@ def main(out: str = "reports", quick: bool = False) -> None:
     for shape, noise, seeds in grid:
         table.append(one_run(shape, noise, seeds))
         r = table[-1]
-        print(f"{shape} noise {noise}: {seeds} seeds: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, {r['components']} "
-              f"components, {r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
-    cols = ["shape", "class", "noise", "noise_ratio", "seeds", "cd_p2s", "faces", "boundary_edges", "components",
-            "seconds"]
+        print(f"{shape} noise {noise}: smoothed_seeds {seeds}: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, "
+              f"{r['components']} components, {r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
+    cols = ["shape", "class", "noise", "noise_ratio", "smooth_k", "smoothed_seeds", "cd_p2s", "faces",
+            "boundary_edges", "components", "seconds"]
     write_cd_report(out, "bench_noisy_seeds", "Seeds on noisy point clouds", __doc__, table, cols,
                     {"noise_ratio": ".3f", "seconds": ".0f"})
