@@ -181,8 +181,8 @@ def test_offsets_that_make_faces_cross_go_back():
     groups = np.arange(len(v))
     x = np.array([-0.002] * 4 + [-0.01, -0.01, 0.0] + [-0.004] * 3)
     assert FaceIndex(v + x[:, None] * axes, f).crossing(f).sum() == 3   # the wall and both floor faces
-    restored = undo_crossings(v, f, x, axes, groups)
-    assert restored == 6 and np.allclose(x[:6], [-0.001] * 4 + [-0.005] * 2) and np.all(x[7:] == -0.004)
+    held_back = undo_crossings(v, f, x, axes, groups)
+    assert held_back == 6 and np.allclose(x[:6], [-0.001] * 4 + [-0.005] * 2) and np.all(x[7:] == -0.004)
     assert not FaceIndex(v + x[:, None] * axes, f).crossing(f).any()
     harmless = np.array([-0.002] * 4 + [0.01, 0.01, 0.0] + [-0.004] * 3)   # the wall lifted instead
     kept = harmless.copy()

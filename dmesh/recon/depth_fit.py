@@ -134,8 +134,8 @@ def fit_to_depth(vertices, faces, world_to_camera, fov_y_degrees: float, depth, 
             one axis, so they keep their distances; None: every vertex on its own.
     Returns:
         (new (N, 3) float64 vertices, info {"fit_samples": share of samples some view measured,
-        "median_offset": median |offset| of the moved vertices, "moved": vertices moved, "restored": vertices
-        held back by `undo_crossings`}).
+        "median_offset": median |offset| of the moved vertices, "moved": vertices moved, "held_back":
+        vertices held back by `undo_crossings`}).
     """
     from scipy.sparse import csr_matrix
     from scipy.sparse.linalg import lsqr
@@ -179,11 +179,11 @@ def fit_to_depth(vertices, faces, world_to_camera, fov_y_degrees: float, depth, 
     a = csr_matrix((vals, (rows, cols)), shape=(m + len(edges), n))
     x = lsqr(a, np.concatenate([delta[measured], np.zeros(len(edges))]), damp=cfg.damp)[0]
     x = np.clip(x, -cfg.max_offset, cfg.max_offset)
-    restored = undo_crossings(v, f, x, vn, g) if cfg.uncross else 0
+    held_back = undo_crossings(v, f, x, vn, g) if cfg.uncross else 0
     moved = np.abs(x) > 0
     info = {"fit_samples": float(measured.mean()),
             "median_offset": float(np.median(np.abs(x[moved]))) if moved.any() else 0.0,
-            "moved": int(moved[g].sum()), "restored": restored}
+            "moved": int(moved[g].sum()), "held_back": held_back}
     return v + (x[:, None] * vn)[g], info
 
 
@@ -202,17 +202,17 @@ def undo_crossings(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, axes:
     from dmesh.repair import FaceIndex
 
     before = FaceIndex(vertices, faces).crossing(faces)
-    restored = np.zeros(0, np.int64)
+    held = np.zeros(0, np.int64)
     while True:
         now = vertices + (x[:, None] * axes)[groups]
         bad = FaceIndex(now, faces).crossing(faces) & ~before
         back = np.unique(groups[faces[bad]])
         back = back[x[back] != 0]
         if len(back) == 0:
-            return int(np.isin(groups, restored).sum())
+            return int(np.isin(groups, held).sum())
         x[back] *= 0.5
         x[back[np.abs(x[back]) < 1e-3 * np.abs(x).max(initial=0.0)]] = 0.0
-        restored = np.union1d(restored, back)
+        held = np.union1d(held, back)
 
 
 __all__ = ["DepthFitConfig", "fit_to_depth", "depth_residuals", "undo_crossings"]

@@ -82,7 +82,7 @@ def one_shape(shape: str) -> dict:
         mesh = trimesh.Trimesh(fitted / scale + center, f, process=False)
         row[f"self_int_{name}"] = self_intersecting_faces(mesh.vertices, mesh.faces)
         row[f"cd_p2s_{name}"] = chamfer_l1_p2s(mesh, gt, n=100_000)
-    row["held_back"] = info["restored"]
+    row["held_back"] = info["held_back"]
     unfitted = trimesh.Trimesh(v / scale + center, f, process=False)
     row["self_int_unfitted"] = self_intersecting_faces(unfitted.vertices, unfitted.faces)
     return row
