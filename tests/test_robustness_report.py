@@ -328,26 +328,36 @@ def test_import_store_loads_the_export_and_keeps_what_the_store_has(db, tmp_path
 
 def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_path):
     """The calibration section: per corruption and level, the noise ratio DMesh's default runs recorded (min,
-    max) and how many smoothed; runs without the figure (older code) and other presets are left out."""
+    max), how many smoothed and how many were made again after a shredded first mesh; runs without the figure
+    (older code) and other presets are left out."""
     def dm(key, shape, corruption, info, config=""):
         row = _row(key, "dmesh", shape, "closed", corruption, 1e-3, config=config)
         return {**row, "info_json": info}
 
     with Store(db) as s:
-        s.upsert(dm("n1", "torus", {"noise": 0.005}, {"noise_ratio": 0.2, "smooth_k": 120}))
-        s.upsert(dm("n2", "genus2", {"noise": 0.005}, {"noise_ratio": 0.15, "smooth_k": 120}))
+        s.upsert({**dm("n1", "torus", {"noise": 0.005}, {"noise_ratio": 0.2, "smooth_k": 120}),
+                  "metrics_json": {"cd_p2s": 1e-3, "faces": 100, "components": 3}})
+        s.upsert(dm("n2", "genus2", {"noise": 0.005}, {"noise_ratio": 0.08, "smooth_k": 120,
+                                                       "fragmented_attempt": {"boundary_edges_per_face": 0.4}}))
         s.upsert(dm("n3", "torus", {"density": 200}, {"noise_ratio": 0.05, "smooth_k": 0}))
         s.upsert(dm("n4", "genus2", {"density": 200}, {"noise_ratio": 0.07}))  # older code: no choice recorded
         s.upsert(dm("n5", "torus", {"noise": 0.01}, {"noise_ratio": 0.3, "smooth_k": 120}, config="preset=noisy"))
     rows = {(r["corruption"], r["level"]): r for r in robustness.noise_rows(_df(db))}
     assert set(rows) == {("noise", 0.005), ("density", 200)}
-    assert (rows[("noise", 0.005)]["ratio_min"], rows[("noise", 0.005)]["ratio_max"]) == (0.15, 0.2)
+    assert (rows[("noise", 0.005)]["ratio_min"], rows[("noise", 0.005)]["ratio_max"]) == (0.08, 0.2)
     assert rows[("noise", 0.005)]["smoothed"] == "2 of 2" and rows[("density", 200)]["smoothed"] == "0 of 1"
+    assert rows[("noise", 0.005)]["redone"] == "1 of 2" and rows[("density", 200)]["redone"] == "0 of 1"
     assert rows[("density", 200)]["n"] == 2
     robustness.write_robustness(_df(db), tmp_path / "rep", db, db.parent, renders=False)
     md = (tmp_path / "rep" / "robustness.md").read_text()
     assert "## How noisy DMesh found each input" in md
-    assert "| pointcloud | noise | 0.005 | 2 | 0.150 | 0.200 | 2 of 2 |" in md
+    assert "| pointcloud | noise | 0.005 | 2 | 0.080 | 0.200 | 2 of 2 | 1 of 2 |" in md
+    # The main table shows the mean components of the runs that counted them.
+    import pandas as pd
+
+    table = pd.read_csv(tmp_path / "rep" / "robustness.csv")
+    noisy = table[(table["corruption"] == "noise") & (table["level"].astype(str) == "0.005") & (table["method"] == "dmesh")]
+    assert list(noisy["components"]) == [3]
     # The multi-view depth start smooths from the pool (preset "fast", pool_k > 0), or with `noisy` before it.
     assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.2, "preset": "fast",
                                                                    "pool_k": 500}}) == (0.2, True)

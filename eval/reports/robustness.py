@@ -34,10 +34,11 @@ FACTORS = ("noise", "outliers", "density", "nonuniform", "normals", "scan", "dep
 #: Corruptions where a smaller level is the harder one (fewer points, cameras, views, pixels).
 _DESCENDING = ("density", "scan", "views", "resolution")
 CSV_COLUMNS = ["input", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1", "time_s",
-               "faces", "fscore", "normal_consistency", "setting"]
+               "faces", "components", "fscore", "normal_consistency", "setting"]
 BUDGET_COLUMNS = ["input", "method", "category", "config", "density", "n", "faces", "cd_p2s", "time_s"]
 _METRICS = (("cd_p2s", ("cd_p2s",)), ("cd_l1", ("cd_l1",)), ("time_s", ("time_s",)), ("faces", ("faces", "n_faces")),
-            ("fscore", ("fscore", "f_score")), ("normal_consistency", ("normal_consistency", "nc")))
+            ("components", ("components",)), ("fscore", ("fscore", "f_score")),
+            ("normal_consistency", ("normal_consistency", "nc")))
 _CLASSES = ("closed", "open", "mixed")
 
 
@@ -254,8 +255,9 @@ def _measured_noise(kind: str, info) -> tuple[float | None, bool | None]:
 def noise_rows(df) -> list[dict]:
     """Per input kind, corruption and level: the noise ratio DMesh's default presets measured on the inputs
     (point cloud: `fast`, which smooths above `NOISY_RATIO`; multi-view: the `depth` start, which smooths from
-    all the pixels above `DEPTH_NOISY_RATIO`), min and max over the runs, and how many of them smoothed. The
-    calibration of both thresholds on the sweeps' own inputs."""
+    all the pixels above `DEPTH_NOISY_RATIO`), min and max over the runs, how many of them smoothed and how many
+    point-cloud runs were made again from the smoothed input after a shredded first mesh. The calibration of
+    both thresholds on the sweeps' own inputs."""
     if df is None or not len(df):
         return []
     sub = _labelled(df)
@@ -270,9 +272,11 @@ def noise_rows(df) -> list[dict]:
             if not ratios:
                 continue
             flags = [s for r, s in seen if r is not None and s is not None]
+            redone = sum(isinstance(i, dict) and "fragmented_attempt" in i for i in gl["info"])
             out.append({"input": kind, "corruption": name, "level": levels[key], "n": len(ratios),
                         "ratio_min": min(ratios), "ratio_max": max(ratios),
-                        "smoothed": f"{sum(flags)} of {len(flags)}" if flags else ""})
+                        "smoothed": f"{sum(flags)} of {len(flags)}" if flags else "",
+                        "redone": f"{redone} of {len(flags)}" if kind == "pointcloud" and flags else ""})
     return out
 
 
@@ -472,7 +476,7 @@ def _safe(name: str) -> str:
 
 NOISE_COLUMNS = [("input", "input", None), ("corruption", "corruption", None), ("level", "level", None),
                  ("n", "runs", 1), ("ratio_min", "noise ratio, min", 1, ".3f"), ("ratio_max", "max", 1, ".3f"),
-                 ("smoothed", "smoothed", None)]
+                 ("smoothed", "smoothed", None), ("redone", "made again", None)]
 
 
 def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]], noise=(),
@@ -482,7 +486,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
     cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
             ("corruption", "corruption", None), ("level", "level", None), ("n", "n", 1), ("failed", "failed", 1),
             ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1),
-            ("faces", "faces", 1)]
+            ("faces", "faces", 1), ("components", "components", 1)]
     shown = [{**r, "level": _fmt_level(r["level"])} for r in rows]
     out = ["# Robustness: corrupted inputs, simulated scans and matched budgets", "",
            f"{FRAME_NOTE} Corruptions and their levels (fractions of the radius for noise and depth noise; "
@@ -509,7 +513,9 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 f"pixels (above `DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g} it fits each point from its nearest of all "
                 "the pixels; before 4 December it took the `noisy` point-cloud preset). "
                 "`smoothed`: how many of the runs that recorded the choice smoothed (blank: runs by code from "
-                "before the choice).",
+                "before the choice). `made again`: how many point-cloud runs did not smooth at first, came out in "
+                "shreds (`FRAGMENTED_BOUNDARY` boundary edges per face) and were made again from the smoothed "
+                "input (a noise the ratio missed).",
                 "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
                              NOISE_COLUMNS)]
     if budget:
