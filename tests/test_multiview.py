@@ -17,7 +17,6 @@ import pytest
 import torch
 
 from datasets import capture as cap
-from dmesh.recon.config import PointCloudConfig
 from dmesh.recon.init import DEPTH_NOISY_RATIO
 from dmesh.recon.multiview import MultiViewConfig, reconstruct
 from common import fake_views
@@ -344,20 +343,22 @@ def test_noisy_depth_start_fits_the_subset_from_every_pixel(sphere, sphere_views
     """With depth noise the "auto" start fits its points from all the lifted pixels and takes the point-cloud
     `fast` preset; its mesh is closer to the sphere than the start that smooths the subset alone
     (`init_pool_k=0`: the point-cloud `noisy` preset). The noise is 2 % of the radius: at 0.5 % both starts
-    reach the floor of this small capture's coarse fit. With `init_smoothed_points` under `init_points` the
-    pooled start keeps that many of the points."""
+    reach the floor of this small capture's coarse fit. `init_pooled_preset="noisy"` gives the pooled points
+    to the point-cloud `noisy` preset instead, which smooths them again."""
     from datasets.corrupt import add_depth_noise
 
     noisy = add_depth_noise(sphere_views, 0.02, seed=0)
     cfg = MultiViewConfig.depth(init_points=5000)
     pooled = reconstruct(noisy, cfg)
     alone = reconstruct(noisy, dataclasses.replace(cfg, init_pool_k=0))
-    fewer = reconstruct(noisy, dataclasses.replace(cfg, init_smoothed_points=3000))
+    again = reconstruct(noisy, dataclasses.replace(cfg, init_pooled_preset="noisy"))
     start = pooled.info["init_depth"]
     assert start["preset"] == "fast" and start["pool_k"] == 500 and start["pixels"] > 5000
-    assert start["lifted_points"] == 5000 and fewer.info["init_depth"]["lifted_points"] == 3000
+    assert (again.info["init_depth"]["preset"], again.info["init_depth"]["pool_k"]) == ("noisy", 500)
     assert alone.info["init_depth"]["preset"] == "noisy" and alone.info["init_depth"]["pool_k"] == 0
-    assert MultiViewConfig.depth().init_smoothed_points == PointCloudConfig.fast().smoothed_seeds
+    assert MultiViewConfig.depth().init_pooled_preset == "fast"
+    with pytest.raises(ValueError, match="init_pooled_preset"):
+        MultiViewConfig(init_pooled_preset="paper")
     assert _p2s(pooled.mesh, sphere) < 0.8 * _p2s(alone.mesh, sphere)
 
 

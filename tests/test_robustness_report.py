@@ -356,7 +356,8 @@ def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_pat
     import pandas as pd
 
     table = pd.read_csv(tmp_path / "rep" / "robustness.csv")
-    noisy = table[(table["corruption"] == "noise") & (table["level"].astype(str) == "0.005") & (table["method"] == "dmesh")]
+    noisy = table[(table["corruption"] == "noise") & (table["level"].astype(str) == "0.005")
+                  & (table["method"] == "dmesh")]
     assert list(noisy["components"]) == [3]
     # The multi-view depth start smooths from the pool (preset "fast", pool_k > 0), or with `noisy` before it.
     assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.2, "preset": "fast",
@@ -365,6 +366,9 @@ def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_pat
         == (0.2, True)
     assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.01, "preset": "fast",
                                                                    "pool_k": 0}}) == (0.01, False)
+    assert robustness._made_again("multiview", {"init_depth": {"redone": True}})
+    assert not robustness._made_again("multiview", {"init_depth": {"redone": False}})
+    assert not robustness._made_again("pointcloud", {"smooth_k": 120})
 
 
 def test_capture_size_levels_take_the_clean_level_from_a_clean_run_whatever_the_store_order(tmp_path):

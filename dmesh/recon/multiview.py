@@ -109,12 +109,13 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid start refined
     through the images (see `MultiViewConfig.depth`).
 
-    "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), at most
-    `cfg.init_smoothed_points` of it are kept (as a smoothed point cloud gives at most `smoothed_seeds` seeds)
-    and each of its points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the
-    lifted pixels (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
+    "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), each of its
+    points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the lifted pixels
+    (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
     the subset, and the fit averages that many more noisy depths over the same patch than the point-cloud
-    `noisy` preset's smoothing of the subset alone (which "auto" takes when `init_pool_k` is 0)."""
+    `noisy` preset's smoothing of the subset alone (which "auto" takes when `init_pool_k` is 0). The pooled
+    points then go to `cfg.init_pooled_preset` ("fast": smoothed again only if they still look noisy to it
+    or its mesh comes out in shreds; "noisy": always, with its 20K seeds)."""
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct as reconstruct_points
 
@@ -125,12 +126,10 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     preset, ratio = depth_start_preset(pts, cfg.init_preset)
     pooled = cfg.init_preset == "auto" and preset == "noisy" and cfg.init_pool_k > 0
     if pooled:
-        if len(pts) > cfg.init_smoothed_points:
-            pts = pts[np.sort(rng.choice(len(pts), int(cfg.init_smoothed_points), replace=False))]
         k = min(int(cfg.init_pool_k), len(pixels))
         log.info("depth start: the %d points fitted from their %d nearest of %d lifted pixels", len(pts), k,
                  len(pixels))
-        pts, preset = smooth_from_pool(pts, pixels, k), "fast"
+        pts, preset = smooth_from_pool(pts, pixels, k), cfg.init_pooled_preset
     pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=False)  # its mesh is not used
     fit = reconstruct_points(pts, None, pc_cfg)
     dm = fit.dmesh
@@ -138,7 +137,8 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     points = np.clip(dm.points.detach().double().numpy() * back + fit.center, -box, box)
     info["init_depth"] = {"lifted_points": int(len(pts)), "points": len(dm), "faces": int(len(fit.mesh.faces)),
                           "seconds": fit.timings.get("total"), "preset": preset, "noise_ratio": ratio,
-                          "pool_k": k if pooled else 0, "pixels": int(len(pixels))}
+                          "pool_k": k if pooled else 0, "pixels": int(len(pixels)),
+                          "redone": "fragmented_attempt" in fit.info}
     return DMesh(points, dm.weights.detach().double().numpy() * back**2, dm.reals.detach().double().numpy(),
                  cfg.probability_config())
 

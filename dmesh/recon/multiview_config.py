@@ -9,7 +9,7 @@ import numbers
 from dataclasses import dataclass
 from typing import ClassVar
 
-from dmesh.recon.config import KERNELS, MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, SMOOTHED_SEEDS, Presets, as_tuple
+from dmesh.recon.config import KERNELS, MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, Presets, as_tuple
 
 INTERIOR_MODES = ("apex", "visible", "both", "sheet", "none")
 INIT_MODES = ("grid", "depth")
@@ -40,11 +40,12 @@ class MultiViewConfig(Presets):
     init_preset: str = "auto"        # "depth": its `PointCloudConfig` preset; "auto": "fast", after the pool
                                      # smoothing below when the lifted pixels look noisy
                                      # (dmesh.recon.init.DEPTH_NOISY_RATIO; "noisy" when init_pool_k is 0)
-    init_pool_k: int = 500           # "auto" on noisy pixels: each of init_smoothed_points of the init_points is
-                                     # first fitted from its init_pool_k nearest of all the lifted pixels (not
-                                     # upstream; dmesh.recon.views.smooth_from_pool); 0: off
-    init_smoothed_points: int = SMOOTHED_SEEDS  # ... at most this many (a smoothed cloud's seeds, as the
-                                     # point-cloud presets' smoothed_seeds: denser ones fall apart)
+    init_pool_k: int = 500           # "auto" on noisy pixels: each of the init_points is first fitted from its
+                                     # init_pool_k nearest of all the lifted pixels (not upstream;
+                                     # dmesh.recon.views.smooth_from_pool); 0: off
+    init_pooled_preset: str = "fast"  # ... then this point-cloud preset: "fast" (smooths again only points that
+                                     # still look noisy or give a shredded mesh) or "noisy" (always smooths
+                                     # again, 20K seeds: better at 1 % depth noise, worse at 0.25 %)
     grid: int = 20                   # epoch 0: grid^3 real points
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
@@ -132,8 +133,9 @@ class MultiViewConfig(Presets):
             raise ValueError(f"MultiViewConfig.init must be one of {INIT_MODES}, got {self.init!r}")
         if int(self.init_points) < 10:
             raise ValueError(f"MultiViewConfig.init_points must be >= 10, got {self.init_points}")
-        if int(self.init_smoothed_points) < 10:
-            raise ValueError(f"MultiViewConfig.init_smoothed_points must be >= 10, got {self.init_smoothed_points}")
+        if self.init_pooled_preset not in ("fast", "noisy"):
+            raise ValueError(f"MultiViewConfig.init_pooled_preset must be 'fast' or 'noisy', got "
+                             f"{self.init_pooled_preset!r}")
         if int(self.init_pool_k) != 0 and int(self.init_pool_k) < 6:
             raise ValueError(f"MultiViewConfig.init_pool_k must be 0 (off) or >= 6 (a quadratic jet has 6 "
                              f"coefficients), got {self.init_pool_k}")

@@ -252,12 +252,22 @@ def _measured_noise(kind: str, info) -> tuple[float | None, bool | None]:
     return ratio, None if k is None else int(k) > 0
 
 
+def _made_again(kind: str, info) -> bool:
+    """Whether a DMesh run's point-cloud fit was made again from the smoothed input after a shredded first
+    mesh (`PointCloudConfig.redo_fragmented`; multi-view: the depth start's fit)."""
+    info = info if isinstance(info, dict) else {}
+    if kind == "multiview":
+        start = info.get("init_depth")
+        return bool(start.get("redone")) if isinstance(start, dict) else False
+    return "fragmented_attempt" in info
+
+
 def noise_rows(df) -> list[dict]:
     """Per input kind, corruption and level: the noise ratio DMesh's default presets measured on the inputs
     (point cloud: `fast`, which smooths above `NOISY_RATIO`; multi-view: the `depth` start, which smooths from
     all the pixels above `DEPTH_NOISY_RATIO`), min and max over the runs, how many of them smoothed and how many
-    point-cloud runs were made again from the smoothed input after a shredded first mesh. The calibration of
-    both thresholds on the sweeps' own inputs."""
+    point-cloud fits were made again from the smoothed input after a shredded first mesh (`_made_again`). The
+    calibration of both thresholds on the sweeps' own inputs."""
     if df is None or not len(df):
         return []
     sub = _labelled(df)
@@ -272,11 +282,11 @@ def noise_rows(df) -> list[dict]:
             if not ratios:
                 continue
             flags = [s for r, s in seen if r is not None and s is not None]
-            redone = sum(isinstance(i, dict) and "fragmented_attempt" in i for i in gl["info"])
+            redone = sum(_made_again(kind, i) for i in gl["info"])
             out.append({"input": kind, "corruption": name, "level": levels[key], "n": len(ratios),
                         "ratio_min": min(ratios), "ratio_max": max(ratios),
                         "smoothed": f"{sum(flags)} of {len(flags)}" if flags else "",
-                        "redone": f"{redone} of {len(flags)}" if kind == "pointcloud" and flags else ""})
+                        "redone": f"{redone} of {len(flags)}" if flags else ""})
     return out
 
 
@@ -513,9 +523,9 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 f"pixels (above `DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g} it fits each point from its nearest of all "
                 "the pixels; before 4 December it took the `noisy` point-cloud preset). "
                 "`smoothed`: how many of the runs that recorded the choice smoothed (blank: runs by code from "
-                "before the choice). `made again`: how many point-cloud runs did not smooth at first, came out in "
-                "shreds (`FRAGMENTED_BOUNDARY` boundary edges per face) and were made again from the smoothed "
-                "input (a noise the ratio missed).",
+                "before the choice). `made again`: how many runs' point-cloud fits did not smooth at first, came "
+                "out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face) and were made again from "
+                "the smoothed input (noise the ratio missed).",
                 "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
                              NOISE_COLUMNS)]
     if budget:
