@@ -366,9 +366,10 @@ def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_pat
         == (0.2, True)
     assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.01, "preset": "fast",
                                                                    "pool_k": 0}}) == (0.01, False)
-    assert robustness._made_again("multiview", {"init_depth": {"redone": True}})
-    assert not robustness._made_again("multiview", {"init_depth": {"redone": False}})
-    assert not robustness._made_again("pointcloud", {"smooth_k": 120})
+    assert robustness._made_again("multiview", {"init_depth": {"redone": True}}) is True
+    assert robustness._made_again("multiview", {"init_depth": {"redone": False}}) is False
+    assert robustness._made_again("multiview", {"init_depth": {"preset": "fast"}}) is None  # older code
+    assert robustness._made_again("pointcloud", {"smooth_k": 120}) is False
 
 
 def test_capture_size_levels_take_the_clean_level_from_a_clean_run_whatever_the_store_order(tmp_path):

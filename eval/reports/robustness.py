@@ -252,14 +252,17 @@ def _measured_noise(kind: str, info) -> tuple[float | None, bool | None]:
     return ratio, None if k is None else int(k) > 0
 
 
-def _made_again(kind: str, info) -> bool:
+def _made_again(kind: str, info) -> bool | None:
     """Whether a DMesh run's point-cloud fit was made again from the smoothed input after a shredded first
-    mesh (`PointCloudConfig.redo_fragmented`; multi-view: the depth start's fit)."""
+    mesh (`PointCloudConfig.redo_fragmented`; multi-view: the depth start's fit); None where the run cannot
+    say (code from before the redo: no "smooth_k" in a point-cloud run's info, no "redone" in a start's)."""
     info = info if isinstance(info, dict) else {}
     if kind == "multiview":
         start = info.get("init_depth")
-        return bool(start.get("redone")) if isinstance(start, dict) else False
-    return "fragmented_attempt" in info
+        return bool(start["redone"]) if isinstance(start, dict) and "redone" in start else None
+    if "fragmented_attempt" in info:
+        return True
+    return False if "smooth_k" in info else None
 
 
 def noise_rows(df) -> list[dict]:
@@ -282,11 +285,11 @@ def noise_rows(df) -> list[dict]:
             if not ratios:
                 continue
             flags = [s for r, s in seen if r is not None and s is not None]
-            redone = sum(_made_again(kind, i) for i in gl["info"])
+            again = [a for a in (_made_again(kind, i) for i in gl["info"]) if a is not None]
             out.append({"input": kind, "corruption": name, "level": levels[key], "n": len(ratios),
                         "ratio_min": min(ratios), "ratio_max": max(ratios),
                         "smoothed": f"{sum(flags)} of {len(flags)}" if flags else "",
-                        "redone": f"{redone} of {len(flags)}" if flags else ""})
+                        "redone": f"{sum(again)} of {len(again)}" if again else ""})
     return out
 
 
@@ -525,7 +528,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "`smoothed`: how many of the runs that recorded the choice smoothed (blank: runs by code from "
                 "before the choice). `made again`: how many runs' point-cloud fits did not smooth at first, came "
                 "out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face) and were made again from "
-                "the smoothed input (noise the ratio missed).",
+                "the smoothed input (noise the ratio missed; blank: runs by code from before the redo).",
                 "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
                              NOISE_COLUMNS)]
     if budget:
