@@ -93,3 +93,15 @@ def write_cd_report(out: str | Path, name: str, title: str, doc: str, rows: list
     shown = [{**r, "cd_p2s": r["cd_p2s"] * 1e3} for r in rows]
     intro = "\n\n".join(doc.split("\n\n")[:2]) + "\n\nCD p2s in the table is x1e-3 (the CSV holds raw distances)."
     return write_report(out, name, title, intro, markdown_table(shown, cols, {"cd_p2s": ".3f", **fmt}), rows)
+
+
+def run_mesh_rows(grid: list[tuple], one_run: Callable[..., dict], label: Callable[..., str]) -> list[dict]:
+    """The rows `one_run(*args)` for each args tuple of `grid`, each printed as it lands: `label(*args)`, then
+    its CD p2s (x1e-3), components, boundary edges and seconds (the keys of the mesh benches' rows)."""
+    rows = []
+    for args in grid:
+        r = one_run(*args)
+        rows.append(r)
+        print(f"{label(*args)}: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, {r['components']} components, "
+              f"{r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
+    return rows

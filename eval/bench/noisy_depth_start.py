@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 
-from eval.bench.common import write_cd_report
+from eval.bench.common import run_mesh_rows, write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweeps
 SHAPES = ("torus", "wavy_sheet", "plant", "flag_box")
@@ -60,13 +60,8 @@ def one_run(shape: str, noise: float, pooled_preset: str) -> dict:
 def main(out: str = "reports", quick: bool = False) -> None:
     grid = [("flag_box", 0.01, p) for p in POOLED_PRESETS] if quick else \
         [(shape, noise, p) for noise in DEPTH_NOISE for shape in SHAPES for p in POOLED_PRESETS]
-    table = []
-    for shape, noise, preset in grid:
-        table.append(one_run(shape, noise, preset))
-        r = table[-1]
-        print(f"{shape} depth noise {noise}: pooled points to {preset}: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, "
-              f"{r['components']} components, {r['boundary_edges']} boundary edges, {r['seconds']:.0f} s",
-              flush=True)
+    table = run_mesh_rows(grid, one_run, lambda shape, noise, preset:
+                          f"{shape} depth noise {noise}: pooled points to {preset}")
     cols = ["shape", "class", "depth_noise", "pooled_preset", "redone", "cd_p2s", "faces", "boundary_edges",
             "components", "seconds"]
     write_cd_report(out, "bench_noisy_depth_start", "The depth start on noisy depth maps", __doc__, table,

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from eval.bench.common import write_cd_report
+from eval.bench.common import run_mesh_rows, write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweep
 SHAPES = ("torus", "genus2", "bowl", "wavy_sheet", "plant", "flag_box")
@@ -62,14 +62,9 @@ def one_run(shape: str, preset: str, variant: str, overrides: dict) -> dict:
 
 
 def main(out: str = "reports", quick: bool = False) -> None:
-    table = []
-    for shape in SHAPES[:1] if quick else SHAPES:
-        for preset, variant, overrides in RUNS:
-            table.append(one_run(shape, preset, variant, overrides))
-            r = table[-1]
-            print(f"{shape}: {preset} ({variant}), {r['real_seeds']} seeds: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, "
-                  f"{r['components']} components, {r['boundary_edges']} boundary edges, {r['seconds']:.0f} s",
-                  flush=True)
+    grid = [(shape, preset, variant, overrides) for shape in (SHAPES[:1] if quick else SHAPES)
+            for preset, variant, overrides in RUNS]
+    table = run_mesh_rows(grid, one_run, lambda shape, preset, variant, overrides: f"{shape}: {preset} ({variant})")
     cols = ["shape", "class", "preset", "variant", "noise_ratio", "smooth_k", "redone", "real_seeds", "cd_p2s",
             "faces", "boundary_edges", "components", "seconds"]
     write_cd_report(out, "bench_noisy_scan_seeds", "Seeds and smoothing on the realistic scan", __doc__, table, cols,

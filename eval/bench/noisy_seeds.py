@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from eval.bench.common import write_cd_report
+from eval.bench.common import run_mesh_rows, write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweep
 SHAPES = ("torus", "genus2", "bowl", "wavy_sheet", "plant", "flag_box")
@@ -61,12 +61,8 @@ def one_run(shape: str, noise: float, seeds: int) -> dict:
 def main(out: str = "reports", quick: bool = False) -> None:
     grid = [("wavy_sheet", 0.01, s) for s in SEEDS] if quick else \
         [(shape, noise, s) for shape in SHAPES for noise in NOISE for s in SEEDS]
-    table = []
-    for shape, noise, seeds in grid:
-        table.append(one_run(shape, noise, seeds))
-        r = table[-1]
-        print(f"{shape} noise {noise}: smoothed_seeds {seeds}: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, "
-              f"{r['components']} components, {r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
+    table = run_mesh_rows(grid, one_run, lambda shape, noise, seeds:
+                          f"{shape} noise {noise}: smoothed_seeds {seeds}")
     cols = ["shape", "class", "noise", "noise_ratio", "smooth_k", "smoothed_seeds", "cd_p2s", "faces",
             "boundary_edges", "components", "seconds"]
     write_cd_report(out, "bench_noisy_seeds", "Seeds on noisy point clouds", __doc__, table, cols,
