@@ -45,7 +45,7 @@ class MultiViewConfig(Presets):
                                      # dmesh.recon.views.smooth_from_pool); 0: off
     init_pooled_preset: str = "fast"  # ... then this point-cloud preset: "fast" (smooths again only points that
                                      # still look noisy or give a shredded mesh) or "noisy" (always smooths
-                                     # again, 20K seeds: better at 1 % depth noise, worse at 0.25 %)
+                                     # again, 20K seeds); which when: python -m eval.bench noisy_depth_start
     grid: int = 20                   # epoch 0: grid^3 real points
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)

@@ -105,3 +105,14 @@ def run_mesh_rows(grid: list[tuple], one_run: Callable[..., dict], label: Callab
         print(f"{label(*args)}: CD p2s {r['cd_p2s'] * 1e3:.3f} x1e-3, {r['components']} components, "
               f"{r['boundary_edges']} boundary edges, {r['seconds']:.0f} s", flush=True)
     return rows
+
+
+def mesh_figures(mesh, gt_path) -> dict:
+    """The figures of the mesh benches' rows: CD p2s against the GT at `gt_path` (100K samples per side, as the
+    tables), faces, boundary edges and connected components."""
+    from eval.metrics import chamfer_l1_p2s, mesh_stats
+    from eval.runner import load_gt
+
+    stats = mesh_stats(mesh, self_intersections=False)
+    return {"cd_p2s": chamfer_l1_p2s(mesh, load_gt(gt_path), n=100_000), "faces": stats["faces"],
+            "boundary_edges": stats["boundary_edges"], "components": stats["components"]}

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 
-from eval.bench.common import run_mesh_rows, write_cd_report
+from eval.bench.common import mesh_figures, run_mesh_rows, write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweeps
 SHAPES = ("torus", "wavy_sheet", "plant", "flag_box")
@@ -42,19 +42,14 @@ def one_run(shape: str, noise: float, pooled_preset: str) -> dict:
     """One row: the `depth` preset with `init_pooled_preset=pooled_preset` on the noisy capture of `shape`."""
     from dmesh.recon.multiview import reconstruct
     from dmesh.recon.multiview_config import MultiViewConfig
-    from eval.metrics import chamfer_l1_p2s, mesh_stats
-    from eval.runner import load_gt
 
     views, gt_path, category = _capture(shape, noise)
     t0 = time.perf_counter()
     res = reconstruct(views, MultiViewConfig.depth(init_pooled_preset=pooled_preset, seed=0))
     seconds = time.perf_counter() - t0
-    stats = mesh_stats(res.mesh, self_intersections=False)
     start = res.info["init_depth"]
     return {"shape": shape, "class": category, "depth_noise": noise, "pooled_preset": pooled_preset,
-            "redone": bool(start.get("redone")), "cd_p2s": chamfer_l1_p2s(res.mesh, load_gt(gt_path), n=100_000),
-            "faces": stats["faces"], "boundary_edges": stats["boundary_edges"], "components": stats["components"],
-            "seconds": seconds}
+            "redone": bool(start.get("redone")), **mesh_figures(res.mesh, gt_path), "seconds": seconds}
 
 
 def main(out: str = "reports", quick: bool = False) -> None:

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from eval.bench.common import run_mesh_rows, write_cd_report
+from eval.bench.common import mesh_figures, run_mesh_rows, write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweep
 SHAPES = ("torus", "genus2", "bowl", "wavy_sheet", "plant", "flag_box")
@@ -46,19 +46,15 @@ def one_run(shape: str, preset: str, variant: str, overrides: dict) -> dict:
     """One row: `preset` with `overrides` on the realistic scan of `shape`."""
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct
-    from eval.metrics import chamfer_l1_p2s, mesh_stats
-    from eval.runner import load_gt
 
     points, normals, gt_path, category = _cloud(shape)
     t0 = time.perf_counter()
     res = reconstruct(points, normals, PointCloudConfig.preset(preset, **overrides, seed=0))
     seconds = time.perf_counter() - t0
-    stats = mesh_stats(res.mesh, self_intersections=False)
     return {"shape": shape, "class": category, "preset": preset, "variant": variant,
             "noise_ratio": res.info.get("noise_ratio"), "smooth_k": res.info.get("smooth_k"),
             "redone": "fragmented_attempt" in res.info, "real_seeds": res.info["real_seeds"],
-            "cd_p2s": chamfer_l1_p2s(res.mesh, load_gt(gt_path), n=100_000), "faces": stats["faces"],
-            "boundary_edges": stats["boundary_edges"], "components": stats["components"], "seconds": seconds}
+            **mesh_figures(res.mesh, gt_path), "seconds": seconds}
 
 
 def main(out: str = "reports", quick: bool = False) -> None:

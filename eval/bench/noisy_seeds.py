@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from eval.bench.common import run_mesh_rows, write_cd_report
+from eval.bench.common import mesh_figures, run_mesh_rows, write_cd_report
 
 WORK = "runs/paper"  # the input cache of the robustness sweep
 SHAPES = ("torus", "genus2", "bowl", "wavy_sheet", "plant", "flag_box")
@@ -44,18 +44,14 @@ def one_run(shape: str, noise: float, seeds: int) -> dict:
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.init import noise_ratio
     from dmesh.recon.pointcloud import reconstruct
-    from eval.metrics import chamfer_l1_p2s, mesh_stats
-    from eval.runner import load_gt
 
     points, normals, gt_path, category = _cloud(shape, noise)
     t0 = time.perf_counter()
     res = reconstruct(points, normals, PointCloudConfig.fast(smoothed_seeds=seeds, seed=0))
     seconds = time.perf_counter() - t0
-    stats = mesh_stats(res.mesh, self_intersections=False)
     return {"shape": shape, "class": category, "noise": noise, "noise_ratio": noise_ratio(points),
-            "smoothed_seeds": seeds, "smooth_k": res.info["smooth_k"],
-            "cd_p2s": chamfer_l1_p2s(res.mesh, load_gt(gt_path), n=100_000), "faces": stats["faces"],
-            "boundary_edges": stats["boundary_edges"], "components": stats["components"], "seconds": seconds}
+            "smoothed_seeds": seeds, "smooth_k": res.info["smooth_k"], **mesh_figures(res.mesh, gt_path),
+            "seconds": seconds}
 
 
 def main(out: str = "reports", quick: bool = False) -> None:
