@@ -41,7 +41,7 @@ EXPORT_NAME = Path("store") / "runs.jsonl.gz"
 FORMAT, VERSION = "dmesh-harness runs", 1
 EXPORT_COLUMNS = ("key", "method", "config_label", "shape", "category", "input_kind", "config_json", "inputs_json",
                   "seed", "status", "error", "metrics_json", "timings_json", "info_json", "peak_memory_mb",
-                  "mesh_path", "gt_hash", "started_at", "finished_at", "code_version")
+                  "mesh_path", "gt_hash", "started_at", "finished_at", "code_version", "base_key", "code_deps")
 
 
 def _latest(rows: list[dict]) -> list[dict]:

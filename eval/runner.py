@@ -7,7 +7,9 @@ Flow of `run_sweep(sweep, work, ...)`:
    vertex norm `sweep.radius`), then written as `gt.ply` beside `meta.json`.
 2. Expand the sweep into runs (`eval.sweep.expand`) and skip every run whose key is `done` (or `failed`,
    unless `retry_failed`), unless `rerun` asks for stored runs again (all, or those scored by an earlier
-   metric code). Runs left `running` by a killed process are redone.
+   metric code). Runs left `running` by a killed process are redone. A run with no row under its key whose
+   latest done twin of an earlier code version executed only code that is unchanged is adopted instead
+   (`adopt_current`, `eval.code_deps`): skipped, and shown by the reports as the current code's.
 3. Prepare the inputs of the pending runs once per (shape, input kind, seed), cached beside the GT:
    `pc_n<N>_s<seed>.npz` holds `points` (N, 3) float32 and `normals` (N, 3) float32 (area-uniform samples
    of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).
@@ -15,7 +17,8 @@ Flow of `run_sweep(sweep, work, ...)`:
    local pool of `jobs` forked processes, each run in its own process so that a per-run timeout or a crash in
    native code cannot take the sweep down; or, with `executor="ray"`, Ray tasks on a local Ray or an existing
    cluster, see `eval.ray_executor`). The worker calls the method, computes
-   `eval.metrics.compute_metrics(pred, gt)` in the normalised GT frame, and hands the result back; the output
+   `eval.metrics.compute_metrics(pred, gt)` in the normalised GT frame, and hands the result back with the
+   hashes of the project code the run executed (`eval.code_deps`); the output
    mesh lands atomically in `WORK/meshes/<key[:2]>/<key>.ply` (written by a local worker; by this process
    from a Ray task's result). Only this (parent) process writes the store.
 
@@ -61,6 +64,7 @@ from typing import Callable
 
 import numpy as np
 
+from eval import code_deps
 from eval.io import atomic_path, honour_umask, write_mesh, write_text
 from eval.store import LEASE_S, Lease, Store
 from eval.sweep import RunSpec, ShapeRef, Sweep, build_config, expand, get_method, sources_changed
@@ -413,12 +417,13 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         changed = sources_changed(method, spec.code_version)
         if changed:
             raise RuntimeError(changed)
-        config, _ = build_config(method, spec.overrides)
-        inputs = load_inputs(spec, Path(gt_path), work)
-        gt = load_gt(gt_path)
-        inputs.monitor = gt_monitor(gt)
-        inputs.checkpoint = str(checkpoint_path(work, spec.key))
-        result = method.reconstruct(inputs, config)
+        with code_deps.record() as executed:
+            config, _ = build_config(method, spec.overrides)
+            inputs = load_inputs(spec, Path(gt_path), work)
+            gt = load_gt(gt_path)
+            inputs.monitor = gt_monitor(gt)
+            inputs.checkpoint = str(checkpoint_path(work, spec.key))
+            result = method.reconstruct(inputs, config)
         drop_checkpoint(work, spec.key)
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
@@ -435,11 +440,37 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         info = {**_jsonable(dict(result.info or {})), "worker_threads": _threads()}  # the timings' budget
         return {"status": "done", "metrics": dict(metrics), "timings": timings,
                 "info": info, "peak_memory_mb": float(result.peak_memory_mb),
-                "mesh_path": str(out)}
+                "mesh_path": str(out), "code_deps": _code_deps(method, spec, executed)}
     except Exception as exc:  # noqa: BLE001 - every failure of a run is a result (stored as failed)
         log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())
         drop_checkpoint(work, spec.key)  # a failing run starts over when retried
         return {"status": "failed", "error": one_line(exc)}
+
+
+def _code_deps(method, spec: RunSpec, executed) -> dict | None:
+    """The hashes of the code the run executed (`eval.code_deps.deps_for`), or None when nothing was recorded,
+    the method names its own code trees, or its sources changed while it ran (the record would not match)."""
+    if executed is None or getattr(method, "code_trees", None) or sources_changed(method, spec.code_version):
+        return None
+    try:
+        return code_deps.deps_for(method, executed)
+    except (OSError, ValueError) as exc:  # a source file vanished meanwhile: the run is simply not adoptable
+        log.warning("run %s: could not hash the code it executed: %s", spec.key[:12], one_line(exc))
+        return None
+
+
+def adopt_current(runs: list[RunSpec], store: Store) -> list[RunSpec]:
+    """`runs` with each run that has no finished row under its key replaced by its latest done twin (same
+    `base_key`, an earlier code version) whose executed code is unchanged (`eval.code_deps.fresh`): such a run
+    is the current code's result, so the sweep skips it and the reports show it as current."""
+    out = []
+    for spec in runs:
+        if spec.base_key and store.status(spec.key) is None:
+            twin = next((r for r in store.twins(spec.base_key) if code_deps.fresh(r["code_deps"])), None)
+            if twin is not None:
+                spec = dataclasses.replace(spec, key=twin["key"], code_version=twin["code_version"])
+        out.append(spec)
+    return out
 
 
 def _warn_post_step_damage(spec: RunSpec, info, metrics) -> None:
@@ -703,6 +734,8 @@ def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
         plan.pending = len(runs)
         return plan
     with Store(runner.db_path) as store:
+        if runner.rerun is None:
+            runs = adopt_current(runs, store)
         walls: dict[str, tuple[str, float]] = {}
         for row in store.rows():
             wall = _wall_s(row) if row["status"] == "done" else None
@@ -750,9 +783,11 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
         connect(runner.ray_address, runner.jobs)
     shapes, gts = resolve_and_prepare_shapes(sweep, work)
     runs = expand(sweep, shapes)
-    summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
     lease = Lease.new()
     with Store(runner.db_path) as store:
+        if runner.rerun is None:  # a rerun runs the current code under its own key
+            runs = adopt_current(runs, store)
+        summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
         pending, retry_attempts = [], {}
         metrics_now = _metrics_now(runner)
         for spec in runs:
@@ -805,7 +840,8 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
                     pass
                 stored = store.finish(spec.key, status="done", metrics=outcome["metrics"],
                                       timings=outcome["timings"], info=outcome.get("info"),
-                                      peak_memory_mb=outcome.get("peak_memory_mb"), mesh_path=mesh_path, lease=lease)
+                                      peak_memory_mb=outcome.get("peak_memory_mb"), mesh_path=mesh_path, lease=lease,
+                                      code_deps=outcome.get("code_deps"))
             else:
                 stored = store.finish(spec.key, status="failed", error=outcome["error"], lease=lease)
                 if stored:

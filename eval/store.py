@@ -37,6 +37,10 @@ Columns (all JSON columns hold UTF-8 JSON text):
     started_at     TEXT  ISO-8601 UTC
     finished_at    TEXT  ISO-8601 UTC
     code_version   TEXT  package version + source hash (see `eval.sweep.code_version`)
+    base_key       TEXT  the run key without the code version (`eval.sweep.RunSpec.base_key`); NULL in rows
+                         of older stores
+    code_deps      TEXT  JSON: the hashes of the code the run executed (`eval.code_deps.deps_for`), by which
+                         a later sweep adopts it when its code version is an earlier one; NULL when unknown
     lease_pid      INT   process id of the sweep that claimed the run last
     lease_host     TEXT  host name of that process
     lease_token    TEXT  random id of that sweep (one per `Lease`)
@@ -85,6 +89,8 @@ _COLUMNS = {
     "started_at": "TEXT",
     "finished_at": "TEXT",
     "code_version": "TEXT",
+    "base_key": "TEXT",
+    "code_deps": "TEXT",
     "lease_pid": "INTEGER",
     "lease_host": "TEXT",
     "lease_token": "TEXT",
@@ -92,10 +98,10 @@ _COLUMNS = {
     "attempts": "INTEGER NOT NULL DEFAULT 0",
 }
 COLUMNS = tuple(_COLUMNS)
-_JSON_COLUMNS = ("config_json", "inputs_json", "metrics_json", "timings_json", "info_json")
+_JSON_COLUMNS = ("config_json", "inputs_json", "metrics_json", "timings_json", "info_json", "code_deps")
 #: What a run produces (cleared when it is claimed again).
 _RESULT_COLUMNS = ("status", "error", "metrics_json", "timings_json", "info_json", "peak_memory_mb", "mesh_path",
-                   "started_at", "finished_at")
+                   "started_at", "finished_at", "code_deps")
 
 
 def utc_now() -> str:
@@ -203,6 +209,7 @@ class Store:
                 if name not in have:
                     self._conn.execute(f"ALTER TABLE runs ADD COLUMN {name} {decl.replace('PRIMARY KEY', '')}")
             self._conn.execute("CREATE INDEX IF NOT EXISTS runs_status ON runs(status)")
+            self._conn.execute("CREATE INDEX IF NOT EXISTS runs_base_key ON runs(base_key)")
 
     def _set_wal(self) -> None:
         # Switching to WAL needs a moment alone with the file; a second process opening the store at the
@@ -305,8 +312,9 @@ class Store:
                 n = self._conn.execute(
                     f"UPDATE runs SET status='running', started_at=:started, {cleared}, lease_pid=:lease_pid, "
                     "lease_host=:lease_host, lease_token=:lease_token, heartbeat_at=:heartbeat_at, "
+                    "base_key=COALESCE(base_key, :base_key), "
                     "attempts=attempts+1 WHERE key=:key AND (status!='done' OR attempts=:again)",
-                    {**lease_cols, "started": started, "key": key,
+                    {**lease_cols, "started": started, "key": key, "base_key": row.get("base_key"),
                      "again": -1 if retry_attempts is None else retry_attempts}).rowcount
                 if n != 1:  # cannot happen under the lock; the guard is what keeps done rows done
                     return "done"
@@ -348,8 +356,9 @@ class Store:
 
     def finish(self, key: str, *, status: str, error: str | None = None, metrics: dict | None = None,
                timings: dict | None = None, info: dict | None = None, peak_memory_mb: float | None = None,
-               mesh_path: str | None = None, lease: Lease | None = None) -> bool:
-        """Stores the outcome of the run `key` (status done or failed).
+               mesh_path: str | None = None, lease: Lease | None = None, code_deps: dict | None = None) -> bool:
+        """Stores the outcome of the run `key` (status done or failed), with the hashes of the code it executed
+        (`code_deps`) when known.
 
         Never replaces a `done` row. With `lease`, stores only while the run is `running` under that lease
         (a sweep whose run was taken over keeps out). Returns whether the outcome was stored.
@@ -360,8 +369,10 @@ class Store:
         if status not in ("done", "failed"):
             raise ValueError(f"Store.finish: status must be 'done' or 'failed', got {status!r}")
         sql = ("UPDATE runs SET status=?, error=?, metrics_json=?, timings_json=?, info_json=?, "
-               "peak_memory_mb=?, mesh_path=?, finished_at=?, heartbeat_at=NULL WHERE key=? AND status!='done'")
-        args = [status, error, _json(metrics), _json(timings), _json(info), peak_memory_mb, mesh_path, utc_now(), key]
+               "peak_memory_mb=?, mesh_path=?, finished_at=?, code_deps=?, heartbeat_at=NULL "
+               "WHERE key=? AND status!='done'")
+        args = [status, error, _json(metrics), _json(timings), _json(info), peak_memory_mb, mesh_path, utc_now(),
+                _json(code_deps), key]
         if lease is not None:
             sql += " AND status='running' AND lease_token=?"
             args.append(lease.token)
@@ -411,6 +422,13 @@ class Store:
             sql += " WHERE " + " AND ".join(f"{k}=?" for k in where)
         sql += " ORDER BY input_kind, category, shape, method, config_label, seed"
         return [_decode(r) for r in self._conn.execute(sql, tuple(where.values()))]
+
+    def twins(self, base_key: str) -> list[dict]:
+        """The done runs with `base_key` that carry `code_deps` (the same run under other code versions),
+        latest first, JSON columns decoded."""
+        sql = ("SELECT * FROM runs WHERE base_key=? AND status='done' AND code_deps IS NOT NULL "
+               "ORDER BY finished_at DESC")
+        return [_decode(r) for r in self._conn.execute(sql, (base_key,))]
 
     def counts(self) -> dict[str, int]:
         """Number of runs per status."""

@@ -8,7 +8,10 @@ A `Sweep` is a frozen, validated dataclass loadable from YAML (`Sweep.from_yaml`
 
 where the GT hash is the SHA-256 of a real mesh's file bytes, or of a synthetic shape's generator name and
 seed, and the code version is the package version plus a hash of the source files the run depends on
-(`code_version`). Same key, same result: the runner never recomputes a finished key.
+(`code_version`). Same key, same result: the runner never recomputes a finished key. A stored run whose key
+holds an earlier code version stays current when the code it executed did not change (`eval.code_deps`): the
+runner then adopts it under its own key (`eval.runner.adopt_current`), found by its `base_key` (the run key
+without the code version).
 
 Shape specs (strings):
     "torus"                a synthetic shape of `datasets.synthetic.SHAPES`, generator seed 0
@@ -459,6 +462,8 @@ def code_text(path: Path) -> bytes:
     reruns nothing); the raw bytes of other files and of Python that does not parse."""
     import ast
 
+    from eval.code_deps import strip_docstrings
+
     data = path.read_bytes()
     if path.suffix != ".py":
         return data
@@ -466,13 +471,7 @@ def code_text(path: Path) -> bytes:
         tree = ast.parse(data, str(path))
     except (SyntaxError, ValueError):
         return data
-    for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
-            first = node.body[0]
-            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
-                    and isinstance(first.value.value, str):
-                node.body = node.body[1:] or [ast.Pass()]
-    return ast.dump(tree, include_attributes=False).encode()
+    return ast.dump(strip_docstrings(tree), include_attributes=False).encode()
 
 
 @functools.lru_cache(maxsize=None)
@@ -654,13 +653,15 @@ class RunSpec:
     inputs: Mapping[str, Any]      # input settings (in the key)
     seed: int
     code_version: str
+    base_key: str = ""             # the run key without the code version (`eval.runner.adopt_current`)
 
     def identity(self) -> dict:
         """The store columns that identify the run (without results)."""
         return {"key": self.key, "method": self.method, "config_label": self.config_label,
                 "shape": self.shape.id, "category": self.shape.category or "unknown",
                 "input_kind": self.input_kind, "config_json": dict(self.config), "inputs_json": dict(self.inputs),
-                "seed": self.seed, "gt_hash": self.shape.gt_hash, "code_version": self.code_version}
+                "seed": self.seed, "gt_hash": self.shape.gt_hash, "code_version": self.code_version,
+                "base_key": self.base_key or None}
 
 
 def get_method(name: str):
@@ -704,10 +705,10 @@ def expand(sweep: Sweep, shapes: list[ShapeRef] | None = None) -> list[RunSpec]:
                     continue
                 for ov, cfg in configs[m.name]:
                     for seed in sweep.seeds:
-                        key = run_key(method=m.name, shape_id=shape.id, gt_hash=shape.gt_hash, input_kind=kind,
-                                      input_settings=settings, config=cfg, seed=seed,
-                                      code_version=versions[m.name])
-                        runs.append(RunSpec(key=key, method=m.name, overrides=ov, config=cfg,
-                                            config_label=config_label(ov), shape=shape, input_kind=kind,
-                                            inputs=settings, seed=seed, code_version=versions[m.name]))
+                        ident = dict(method=m.name, shape_id=shape.id, gt_hash=shape.gt_hash, input_kind=kind,
+                                     input_settings=settings, config=cfg, seed=seed)
+                        runs.append(RunSpec(key=run_key(**ident, code_version=versions[m.name]), method=m.name,
+                                            overrides=ov, config=cfg, config_label=config_label(ov), shape=shape,
+                                            input_kind=kind, inputs=settings, seed=seed,
+                                            code_version=versions[m.name], base_key=run_key(**ident, code_version="")))
     return runs

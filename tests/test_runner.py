@@ -321,6 +321,42 @@ def test_a_run_whose_method_sources_changed_since_planning_fails_with_the_reason
     assert "sources of method 'fake_hull' changed after the sweep started" in out["error"]
 
 
+def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_version(fake, tmp_path, monkeypatch):
+    """A done run records the hashes of the code it executed; when the method's code version changes but that
+    code did not, the next sweep adopts the stored run (nothing runs, the report counts it as current); once a
+    recorded hash no longer holds, the run is made again under the new key."""
+    import eval.sweep
+    from eval.reports.recipes import made_by_earlier_code
+    from eval.runner import RunnerConfig, plan_sweep, run_sweep
+
+    counter = tmp_path / "calls.txt"
+    sweep = small_sweep(configs={"fake_hull": [{"counter": str(counter)}]})
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    first = run_sweep(sweep, runner)
+    with Store(runner.db_path) as store:
+        (row,) = store.rows()
+    assert row["base_key"] and row["code_deps"] and all(len(v) == 16 for v in row["code_deps"].values())
+    assert any(k.startswith("file:datasets/") for k in row["code_deps"])
+
+    monkeypatch.setattr(eval.sweep, "code_version", lambda method, root=REPO: "9.9+src.elsewhere")
+    assert plan_sweep(sweep, runner).stored == 1
+    again = run_sweep(sweep, runner)
+    assert (again.skipped, again.done, again.keys) == (1, 0, first.keys)
+    assert counter.read_text().split() == ["0"]
+    assert not made_by_earlier_code(row, "9.9+src.elsewhere")
+
+    entry = sorted(row["code_deps"])[0]
+    with Store(runner.db_path) as store:  # as if that file had changed since the run
+        store.upsert({**row, "code_deps": {**row["code_deps"], entry: "0" * 16}})
+        assert made_by_earlier_code(store.get(row["key"]), "9.9+src.elsewhere")
+    assert plan_sweep(sweep, runner).pending == 1
+    third = run_sweep(sweep, runner)
+    assert third.done == 1 and third.keys != first.keys
+    assert counter.read_text().split() == ["0", "0"]
+    with Store(runner.db_path) as store:
+        assert store.get(third.keys[0])["code_version"] == "9.9+src.elsewhere"
+
+
 def test_timeout_and_worker_crash_are_failed_runs(fake, tmp_path):
     from eval.runner import RunnerConfig, run_sweep
 
@@ -633,10 +669,10 @@ def test_plan_counts_stored_runs_and_times_the_rest_by_their_stored_twins(fake, 
     runner = RunnerConfig(work=str(tmp_path / "work"))
     assert plan_sweep(small_sweep(seeds=(0, 1)), runner).pending == 2  # no store yet
     run_sweep(small_sweep(seeds=(0,)), runner)
-    with Store(runner.db_path) as store:  # the stored run as if made by older code, in 90 s
-        row = store.rows()[0]
+    with Store(runner.db_path) as store:  # the stored run as if made by older code (no record of what it ran)
+        row = store.rows()[0]             # in 90 s
         store.delete([row["key"]])
-        store.upsert({**row, "key": "older", "started_at": "2026-01-01T00:00:00+00:00",
+        store.upsert({**row, "key": "older", "code_deps": None, "started_at": "2026-01-01T00:00:00+00:00",
                       "finished_at": "2026-01-01T00:01:30+00:00"})
     plan = plan_sweep(small_sweep(seeds=(0, 1)), runner)
     assert (plan.total, plan.stored, plan.pending, plan.known, plan.known_s) == (2, 0, 2, 1, 90.0)

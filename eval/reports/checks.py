@@ -40,7 +40,7 @@ def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], list[float]]:
     `Store.dataframe()` selection."""
     if df is None or not len(df) or "info" not in df.columns:
         return [], []
-    from eval.reports.recipes import current_code_version
+    from eval.reports.recipes import current_code_version, made_by_earlier_code
 
     now = {m: current_code_version(m) for m in set(df["method"])}
     rows, ratios = [], []
@@ -52,13 +52,12 @@ def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], list[float]]:
         if gap[0] <= ratio:
             continue
         last = gap[1]
-        version = now.get(r["method"])
         rows.append({"method": method_label(display_name(r["method"], r["input_kind"]), r["config_label"]),
                      "shape": r["shape"], "category": r["category"], "input_kind": r["input_kind"],
                      "seed": int(r["seed"]), "key": r["key"],
                      "last_step": f"phase {last.get('phase')}, step {last.get('step')}",
                      "monitor_cd_p2s": float(last["cd_p2s"]), "cd_p2s": float(r["cd_p2s"]), "ratio": gap[0],
-                     "earlier_code": "yes" if version and r.get("code_version") != version else ""})
+                     "earlier_code": "yes" if made_by_earlier_code(r, now.get(r["method"])) else ""})
     rows.sort(key=lambda row: -row["ratio"])
     return rows, ratios
 

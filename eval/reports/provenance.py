@@ -6,6 +6,7 @@ keeps that run's old figures until `dmesh rescore` recomputes them (which needs 
 visible here, per table row, so a table never mixes two versions of the code silently:
 
     earlier code       runs whose `code_version` is not the method's sources' now (`eval.sweep.code_version`)
+                       and whose executed code changed since (`eval.code_deps.fresh`)
     earlier metrics    done runs whose `metrics_version` is not the metric code's now (or that carry none)
 """
 from __future__ import annotations
@@ -14,8 +15,10 @@ from eval.reports.tables import display_name, markdown, method_label
 
 PROVENANCE_NOTE = (
     "Which code made and scored the runs of each row. *earlier code*: runs made by an earlier version of the "
-    "method's sources (the code version hashes the method's module closure; `dmesh bench` runs the current "
-    "code under a new key and the table then shows the new run). *earlier metrics*: done runs scored by an "
+    "method's sources that changed code the run executed (the code version hashes the method's module "
+    "closure; a run whose executed functions, module-level code and inputs' code are unchanged stays current, "
+    "`eval.code_deps`; `dmesh bench` runs the current code under a new key and the table then shows the new "
+    "run). *earlier metrics*: done runs scored by an "
     "earlier `eval.metrics` (their figures may be counted another way; `dmesh rescore --work W` recomputes "
     "those whose mesh is on disk). Zero in both: the row is the current code's.")
 
@@ -26,7 +29,7 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
 
     `label(r)` names a row (default: the method and its config label, as Table 2 shows them).
     """
-    from eval.reports.recipes import current_code_version
+    from eval.reports.recipes import current_code_version, made_by_earlier_code
     from eval.sweep import metrics_version
 
     if df is None or not len(df):
@@ -43,8 +46,7 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
         name = label(r) if label else method_label(display_name(r["method"], r["input_kind"]), r["config_label"])
         row = rows.setdefault(name, {"method": name, "runs": 0, "earlier_code": 0, "earlier_metrics": 0})
         row["runs"] += 1
-        now = code_now[r["method"]]
-        if now is not None and r.get("code_version") != now:
+        if made_by_earlier_code(r, code_now[r["method"]]):
             row["earlier_code"] += 1
         version = r.get("metrics_version")
         if r["status"] == "done" and (not isinstance(version, str) or version != metrics_now):

@@ -54,7 +54,18 @@ def _older_runs(method: str, runs) -> int:
     now = current_code_version(method)
     if now is None or "code_version" not in getattr(runs, "columns", ()):
         return 0
-    return int((runs["code_version"] != now).sum())
+    return sum(made_by_earlier_code(r, now) for _, r in runs.iterrows())
+
+
+def made_by_earlier_code(row, now: str | None) -> bool:
+    """Whether the store row `row` (a dict or a pandas row) was made by other code than its method's sources
+    now: another code version than `now` (`current_code_version`; None: nothing to compare, False), unless
+    the code the run executed is unchanged (`eval.code_deps.fresh`), which makes it the current code's."""
+    from eval.code_deps import fresh
+
+    if now is None or row.get("code_version") == now:
+        return False
+    return not fresh(row.get("code_deps"))
 
 
 def current_code_version(method: str) -> str | None:
@@ -80,4 +91,4 @@ def recipe_markdown(rows: list[dict]) -> str:
     return "\n".join(out) + "\n"
 
 
-__all__ = ["recipe_rows", "recipe_markdown", "current_code_version", "DMESH_METHODS"]
+__all__ = ["recipe_rows", "recipe_markdown", "current_code_version", "made_by_earlier_code", "DMESH_METHODS"]

@@ -1,0 +1,236 @@
+"""The code a run executed, so that an edit of code it never ran leaves it current.
+
+A run's key holds its method's code version (`eval.sweep.code_version`), a hash of the whole module closure of
+the method: any edit inside that closure makes every stored run of the method stale, though most edits touch
+code that many runs never execute (a change to the multi-view depth fit cannot change a run of the `paper`
+preset). So while a run executes, its worker also records which project functions ran (`record`), and the
+run's store row keeps, in `code_deps` (`deps_for`), the hash of each of
+
+    def:PATH::NAME   a module-level function or a method (NAME "Class.method") the run executed, whole
+                     (its nested functions and lambdas belong to it)
+    outline:PATH     a module of the method's closure without its function bodies: imports, constants,
+                     class bodies, signatures and defaults (what runs at import); a function that this
+                     module-level code names (a decorator, a call at import) stays whole in it
+    file:PATH        a file the run depends on whole: the method's own package (`baselines/`: the wrapper
+                     the registry built before the worker started) and the input generation
+                     (`eval.sweep.INPUT_MODULES` and what they import)
+    tree:native      the native sources, when the closure imports `dmesh.native`
+
+A later sweep whose closure hash differs from a stored run's adopts that run as current when every one of
+these hashes still holds (`fresh`; `eval.runner.adopt_current`). Hashes are over the syntax tree without
+docstrings, like the code version, so comments, docstrings and layout change nothing.
+
+What the record cannot see, and how it is covered: code that ran before the worker started (imports, the
+registry's method objects) is in the outlines and `file:` entries; a change to a function that did not run
+can only start to matter through a change to code that did run (the caller, or module-level code), which
+makes the run stale. A run recorded while another trace function was set (a debugger, coverage) records
+nothing and is never adopted.
+
+The record is `sys.settrace` with a global trace function that notes each new frame's code object and
+returns None, so no line of the run is traced; its cost is one Python call per Python function call of
+the run.
+"""
+from __future__ import annotations
+
+import ast
+import contextlib
+import functools
+import hashlib
+import sys
+from pathlib import Path
+from typing import Iterator, Mapping
+
+#: Packages whose executed functions are recorded one by one (the harness, `eval`, is not a run's code).
+TRACED_PACKAGES = ("dmesh", "datasets", "baselines")
+#: Packages a run depends on whole, file by file, when they are in its closure (the method wrappers).
+WHOLE_PACKAGES = ("baselines",)
+
+
+@contextlib.contextmanager
+def record() -> Iterator[set | None]:
+    """Collects the code objects of every Python function this thread calls inside the block.
+
+    Yields the set being filled, or None when another trace function is already set (nothing is recorded:
+    the caller then stores no dependencies)."""
+    if sys.gettrace() is not None:
+        yield None
+        return
+    seen: set = set()
+    add = seen.add
+
+    def tracer(frame, event, arg):
+        add(frame.f_code)
+        return None
+
+    sys.settrace(tracer)
+    try:
+        yield seen
+    finally:
+        sys.settrace(None)
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def strip_docstrings(tree: ast.AST) -> ast.AST:
+    """Removes, in place, the docstrings of the module, classes and functions of `tree`; returns it."""
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+                    and isinstance(first.value.value, str):
+                node.body = node.body[1:] or [ast.Pass()]
+    return tree
+
+
+def _dump(node: ast.AST) -> bytes:
+    return ast.dump(node, include_attributes=False).encode()
+
+
+class _FileCode:
+    """The hashes of one Python source file: whole, outline and one per unit (module-level function or
+    method), and the line span of each unit (decorators included) for mapping code objects to units."""
+
+    def __init__(self, path: Path):
+        data = path.read_bytes()
+        self.units: dict[str, str] = {}
+        self.spans: list[tuple[int, int, str]] = []
+        try:
+            tree = ast.parse(data, str(path))
+        except (SyntaxError, ValueError):
+            self.whole = self.outline = _digest(data)  # unparsable: every unit of it follows the whole file
+            return
+        defs: list[tuple[str, ast.AST, list]] = []  # (unit name, def node, the body list that holds it)
+
+        def collect(body: list, prefix: str) -> None:
+            for node in body:
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    defs.append((prefix + node.name, node, body))
+                elif isinstance(node, ast.ClassDef):
+                    collect(node.body, f"{prefix}{node.name}.")
+
+        collect(tree.body, "")
+        for name, node, _ in defs:
+            start = min([node.lineno] + [d.lineno for d in node.decorator_list])
+            self.spans.append((start, node.end_lineno or node.lineno, name))
+        self.whole = _digest(_dump(strip_docstrings(tree)))
+        for name, node, _ in defs:
+            self.units[name] = _digest(_dump(node))
+        # The outline: function bodies out, except those of functions the module-level code names (a
+        # decorator, a call at import, an alias), found again in what remains until nothing new is named.
+        bodies = {name: node.body for name, node, _ in defs}
+        keep: set[str] = set()
+        while True:
+            for name, node, _ in defs:
+                node.body = bodies[name] if name in keep else [ast.Pass()]
+            named = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+            more = {name for name, _, _ in defs if name.rsplit(".", 1)[-1] in named and "." not in name} - keep
+            if not more:
+                break
+            keep |= more
+        self.outline = _digest(_dump(tree))
+        for name, node, _ in defs:
+            node.body = bodies[name]
+
+    def unit_at(self, line: int) -> str | None:
+        """The unit whose span holds `line` (the outermost: a nested function belongs to its unit)."""
+        for start, end, name in self.spans:
+            if start <= line <= end:
+                return name
+        return None
+
+
+@functools.lru_cache(maxsize=256)
+def _file_code(path: str, mtime_ns: int, size: int) -> _FileCode:
+    return _FileCode(Path(path))
+
+
+def file_code(path: Path) -> _FileCode | None:
+    """The hashes of the source file `path` (cached while its size and time stay), or None if it is gone."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return _file_code(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=4096)
+def _project_path(filename: str, root: Path) -> str | None:
+    """`filename` relative to `root` when it is a Python file of a traced package, else None."""
+    try:
+        rel = Path(filename).resolve().relative_to(root)
+    except (ValueError, OSError):
+        return None
+    if rel.suffix != ".py" or not rel.parts or rel.parts[0] not in TRACED_PACKAGES:
+        return None
+    return rel.as_posix()
+
+
+def deps_for(method, codes, root: str | Path | None = None, code_root: str | Path | None = None) -> dict[str, str]:
+    """The `code_deps` of a run of `method` that executed `codes` (from `record`), hashed from the sources
+    under `root` (default: the repository). `code_root` is where the executed code was loaded from (default:
+    `root`)."""
+    from eval.sweep import INPUT_MODULES, NATIVE_TREES, REPO, method_trees, module_closure, source_hash
+
+    base = Path(root if root is not None else REPO).resolve()
+    loaded = Path(code_root).resolve() if code_root is not None else base
+    trees = method_trees(method, base)
+    whole = set(module_closure(INPUT_MODULES, str(base)))
+    deps: dict[str, str] = {}
+    for tree in trees:
+        if tree in NATIVE_TREES:
+            deps[f"tree:{tree}"] = source_hash((tree,), base)[:16]
+            continue
+        fc = file_code(base / tree)
+        if fc is None:
+            continue
+        if tree in whole or tree.split("/")[0] in WHOLE_PACKAGES:
+            deps[f"file:{tree}"] = fc.whole
+        else:
+            deps[f"outline:{tree}"] = fc.outline
+    for code in codes:
+        rel = _project_path(code.co_filename, loaded)
+        if rel is None or f"file:{rel}" in deps or rel.split("/")[0] in WHOLE_PACKAGES:
+            continue
+        fc = file_code(base / rel)
+        if fc is None:
+            continue
+        unit = fc.unit_at(code.co_firstlineno)
+        deps[f"outline:{rel}"] = fc.outline  # module-level code, and the constants its functions read
+        if unit is not None:  # else module-level code ran (a lazy import, a module-level lambda)
+            deps[f"def:{rel}::{unit}"] = fc.units[unit]
+    return dict(sorted(deps.items()))
+
+
+def current(entry: str, root: str | Path | None = None) -> str | None:
+    """The hash that dependency `entry` (a `deps_for` key) has in the sources under `root` now; None if its
+    file or unit is gone."""
+    from eval.sweep import REPO, source_hash
+
+    base = Path(root if root is not None else REPO)
+    kind, _, rest = entry.partition(":")
+    if kind == "tree":
+        return source_hash((rest,), base)[:16]
+    path, _, unit = rest.partition("::")
+    fc = file_code(base / path)
+    if fc is None:
+        return None
+    if kind == "file":
+        return fc.whole
+    if kind == "outline":
+        return fc.outline
+    if kind == "def":
+        return fc.units.get(unit)
+    return None
+
+
+def fresh(deps: Mapping[str, str] | None, root: str | Path | None = None) -> bool:
+    """Whether every hash of `deps` (a run's `code_deps`) still holds in the sources under `root`; False
+    without dependencies."""
+    if not deps or not isinstance(deps, Mapping):
+        return False
+    return all(current(entry, root) == value for entry, value in deps.items())
+
+
+__all__ = ["record", "deps_for", "fresh", "current", "file_code", "strip_docstrings", "TRACED_PACKAGES"]

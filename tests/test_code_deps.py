@@ -1,0 +1,175 @@
+"""What code a run executed (`eval.code_deps`): per-function hashes, module outlines, and which edits leave a
+recorded run current. The runner's adoption of such runs is tested in tests/test_runner.py."""
+from __future__ import annotations
+
+import ast
+import shutil
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from eval import code_deps
+from eval.code_deps import file_code
+
+REPO = Path(__file__).resolve().parents[1]
+
+MODULE = textwrap.dedent('''
+    """A module."""
+    import math
+
+    SCALE = 2.0
+
+
+    def _twice(f):
+        def inner(x):
+            return 2 * f(x)
+        return inner
+
+
+    def _build(i):
+        return i * i
+
+
+    TABLE = [_build(i) for i in range(3)]
+
+
+    @_twice
+    def area(r):
+        """Area."""
+        return math.pi * r * r * SCALE
+
+
+    def unused(x):
+        return x + 1
+
+
+    class Box:
+        size: int = 3
+
+        def volume(self):
+            def cube(s):
+                return s ** 3
+            return cube(self.size)
+''')
+
+
+def _hashes(path: Path, text: str):
+    path.write_text(text)
+    fc = file_code(path)
+    return fc.whole, fc.outline, dict(fc.units)
+
+
+def test_each_function_has_its_own_hash_and_the_outline_holds_what_runs_at_import(tmp_path):
+    path = tmp_path / "mod.py"
+    whole, outline, units = _hashes(path, MODULE)
+    assert set(units) == {"_twice", "_build", "area", "unused", "Box.volume"}
+    fc = file_code(path)
+    lines = MODULE.splitlines()
+    line = {s.strip(): i + 1 for i, s in enumerate(lines)}
+    assert fc.unit_at(line["def inner(x):"]) == "_twice"         # a nested function belongs to its unit
+    assert fc.unit_at(line["def cube(s):"]) == "Box.volume"
+    assert fc.unit_at(line["@_twice"]) == "area"                 # decorators are part of the def
+    assert fc.unit_at(line["SCALE = 2.0"]) is None
+
+    def changed(text):
+        w, o, u = _hashes(path, text)
+        return w != whole, o != outline, {k for k in units if u.get(k) != units[k]}
+
+    # A body edit changes that function only, not the outline.
+    assert changed(MODULE.replace("return x + 1", "return x + 2")) == (True, False, {"unused"})
+    assert changed(MODULE.replace("return s ** 3", "return s ** 2")) == (True, False, {"Box.volume"})
+    # Docstrings, comments and layout change nothing.
+    assert changed(MODULE.replace('"""Area."""', '"""The area."""').replace("SCALE = 2.0", "SCALE = 2.0  # x")) \
+        == (False, False, set())
+    # Module-level code: constants, class bodies, signatures and defaults are in the outline.
+    assert changed(MODULE.replace("SCALE = 2.0", "SCALE = 3.0")) == (True, True, set())
+    assert changed(MODULE.replace("size: int = 3", "size: int = 4")) == (True, True, set())
+    assert changed(MODULE.replace("def unused(x):", "def unused(x, y=1):"))[:2] == (True, True)
+    # A function that module-level code calls or decorates with runs at import: its body is in the outline.
+    assert changed(MODULE.replace("return i * i", "return i + i")) == (True, True, {"_build"})
+    assert changed(MODULE.replace("return 2 * f(x)", "return 3 * f(x)")) == (True, True, {"_twice"})
+
+
+def _edit_unit(path: Path, name: str) -> None:
+    """Appends a statement to the body of function `name` ("f" or "Class.f") of the file `path`."""
+    text = path.read_text()
+    tree = ast.parse(text)
+    body, node = tree.body, None
+    for part in name.split("."):
+        node = next(n for n in body if isinstance(n, (ast.FunctionDef, ast.ClassDef)) and n.name == part)
+        body = node.body
+    lines = text.splitlines()
+    lines.insert(node.end_lineno, " " * node.body[0].col_offset + "_edited = 1")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_recorded_run_stays_current_until_code_it_ran_changes(tmp_path):
+    """A real point-cloud reconstruction (the `tiny` preset) under `record`: its dependencies hold on a copy of
+    the sources; an edit of a function it never ran, or of a docstring, leaves them holding; an edit of a
+    function it ran, or of a module-level constant of its closure, does not."""
+    import trimesh
+
+    from datasets.synthetic import torus
+    from dmesh.recon import pointcloud
+    from dmesh.recon.config import PointCloudConfig
+    from eval.sweep import get_method
+
+    for pkg in ("dmesh", "baselines", "datasets", "eval"):
+        shutil.copytree(REPO / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    mesh = torus()
+    points, faces = trimesh.sample.sample_surface(mesh, 3000, seed=0)
+    with code_deps.record() as executed:
+        pointcloud.reconstruct(np.asarray(points), mesh.face_normals[faces], config=PointCloudConfig.preset("tiny"))
+    assert executed, "nothing recorded (is another trace function set?)"
+    deps = code_deps.deps_for(get_method("dmesh"), executed, root=tmp_path, code_root=REPO)
+    ran = {k.split("::")[1] for k in deps if k.startswith("def:dmesh/recon/pointcloud.py::")}
+    assert {"reconstruct", "_reconstruct_once", "_Run.setup"} <= ran
+    assert "outline:dmesh/recon/pointcloud.py" in deps and "file:baselines/dmesh_pointcloud.py" in deps
+    assert "file:datasets/sampling.py" in deps  # the input generation, whole
+    assert not any(k.startswith(("def:eval/", "outline:eval/")) for k in deps)  # the harness is not a run's code
+    assert code_deps.fresh(deps, tmp_path)
+
+    ran_in = {}
+    for k in deps:
+        if k.startswith("def:"):
+            path, _, unit = k[4:].partition("::")
+            ran_in.setdefault(path, set()).add(unit)
+    never = [(path, unit) for path in sorted(ran_in) for unit in sorted(file_code(tmp_path / path).units)
+             if unit not in ran_in[path]]
+    assert len(never) > 10, "the tiny run executed nearly every function of the files it used"
+    for path, unit in never[:5]:
+        _edit_unit(tmp_path / path, unit)
+        assert code_deps.fresh(deps, tmp_path), f"an edit of {path}::{unit}, which the run never ran, made it stale"
+
+    source = tmp_path / "dmesh" / "recon" / "pointcloud.py"
+    text = source.read_text()
+    doc = ast.get_docstring(next(n for n in ast.parse(text).body
+                                 if isinstance(n, ast.FunctionDef) and n.name == "reconstruct"))
+    first = doc.splitlines()[0]
+    source.write_text(text.replace(first, first + " Edited.", 1))
+    assert code_deps.fresh(deps, tmp_path), "a docstring edit made the run stale"
+
+    _edit_unit(source, "_Run.setup")
+    assert not code_deps.fresh(deps, tmp_path)
+    source.write_text(text)
+    assert code_deps.fresh(deps, tmp_path)
+    with open(tmp_path / "dmesh" / "recon" / "loop.py", "a") as f:
+        f.write("\nEDITED = 1\n")
+    assert not code_deps.fresh(deps, tmp_path)
+
+
+def test_nothing_is_recorded_under_another_trace_function():
+    import sys
+
+    def other(frame, event, arg):
+        return None
+
+    sys.settrace(other)
+    try:
+        with code_deps.record() as executed:
+            pass
+    finally:
+        sys.settrace(None)
+    assert executed is None
+    assert not code_deps.fresh(None) and not code_deps.fresh({})
