@@ -660,6 +660,7 @@ class SweepPlan:
     name: str = ""
     total: int = 0
     stored: int = 0         # done (or failed, without retry_failed): skipped
+    kept: int = 0           # of those, done under an earlier code version whose executed code is unchanged
     pending: int = 0        # to run
     known: int = 0          # pending runs with a stored run of the same configuration (any code version)
     known_s: float = 0.0    # the wall seconds of those stored runs (input preparation, method, metrics)
@@ -669,7 +670,10 @@ class SweepPlan:
     def line(self, jobs: int = 1) -> str:
         """One line for the CLI, e.g. "sweep robustness: 546 runs, 500 stored, 46 to run; 40 of them took
         1.2 h when stored (0.6 h at 2 jobs), 6 never ran"."""
-        text = f"sweep {self.name}: {self.total} runs, {self.stored} stored, {self.pending} to run"
+        text = f"sweep {self.name}: {self.total} runs, {self.stored} stored"
+        if self.kept:
+            text += f" ({self.kept} under earlier code versions, current: the code they ran is unchanged)"
+        text += f", {self.pending} to run"
         if self.pending:
             text += (f"; {self.known} of them took {self.known_s / 3600:.2f} h when stored "
                      f"({self.known_s / 3600 / max(1, jobs):.2f} h at {max(1, jobs)} jobs)")
@@ -735,7 +739,9 @@ def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
         return plan
     with Store(runner.db_path) as store:
         if runner.rerun is None:
+            planned = [r.key for r in runs]
             runs = adopt_current(runs, store)
+            plan.kept = sum(a != r.key for a, r in zip(planned, runs))
         walls: dict[str, tuple[str, float]] = {}
         for row in store.rows():
             wall = _wall_s(row) if row["status"] == "done" else None
@@ -785,8 +791,11 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
     runs = expand(sweep, shapes)
     lease = Lease.new()
     with Store(runner.db_path) as store:
+        kept = 0
         if runner.rerun is None:  # a rerun runs the current code under its own key
+            planned = [r.key for r in runs]
             runs = adopt_current(runs, store)
+            kept = sum(a != r.key for a, r in zip(planned, runs))
         summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
         pending, retry_attempts = [], {}
         metrics_now = _metrics_now(runner)
@@ -798,7 +807,8 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
             if row is not None and row["status"] in ("done", "failed"):  # run again only if no other sweep
                 retry_attempts[spec.key] = row["attempts"]                # does it first
             pending.append(spec)
-        log.info("sweep %s: %d runs, %d already stored, %d to run", sweep.name, len(runs), summary.skipped,
+        log.info("sweep %s: %d runs, %d already stored%s, %d to run", sweep.name, len(runs), summary.skipped,
+                 f" ({kept} under earlier code versions whose executed code is unchanged)" if kept else "",
                  len(pending))
         if not pending:
             return summary

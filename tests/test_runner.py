@@ -339,7 +339,9 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     assert any(k.startswith("file:datasets/") for k in row["code_deps"])
 
     monkeypatch.setattr(eval.sweep, "code_version", lambda method, root=REPO: "9.9+src.elsewhere")
-    assert plan_sweep(sweep, runner).stored == 1
+    plan = plan_sweep(sweep, runner)
+    assert (plan.stored, plan.kept, plan.pending) == (1, 1, 0)
+    assert "1 stored (1 under earlier code versions, current: the code they ran is unchanged), 0 to run" in plan.line()
     again = run_sweep(sweep, runner)
     assert (again.skipped, again.done, again.keys) == (1, 0, first.keys)
     assert counter.read_text().split() == ["0"]
