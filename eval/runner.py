@@ -423,7 +423,9 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
             gt = load_gt(gt_path)
             inputs.monitor = gt_monitor(gt)
             inputs.checkpoint = str(checkpoint_path(work, spec.key))
+            cpu0 = time.process_time()
             result = method.reconstruct(inputs, config)
+            cpu_s = time.process_time() - cpu0
         drop_checkpoint(work, spec.key)
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
@@ -437,7 +439,8 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         timings = {k: float(v) for k, v in dict(result.timings).items()}
         if "total" not in timings:
             raise ValueError("the method's timings lack 'total'")
-        info = {**_jsonable(dict(result.info or {})), "worker_threads": _threads()}  # the timings' budget
+        info = {**_jsonable(dict(result.info or {})), "worker_threads": _threads(),  # the timings' budget
+                "method_cpu_s": cpu_s}  # CPU seconds of the worker (all threads) in the method
         return {"status": "done", "metrics": dict(metrics), "timings": timings,
                 "info": info, "peak_memory_mb": float(result.peak_memory_mb),
                 "mesh_path": str(out), "code_deps": _code_deps(method, spec, executed)}

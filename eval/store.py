@@ -438,7 +438,8 @@ class Store:
         """The whole table as a pandas DataFrame, with metric and timing dicts flattened into columns.
 
         Metric columns keep their names (e.g. `cd_p2s`); timing columns are prefixed `time_` and
-        `time_s` is the method's total wall time in seconds. `config_json`, `inputs_json` and `info_json`
+        `time_s` is the method's total wall time in seconds; `cpu_s` its CPU seconds (all threads): the method's
+        own `total_cpu` timing, else the worker's count (`info["method_cpu_s"]`), else None. `config_json`, `inputs_json` and `info_json`
         hold decoded dicts (`config` and `info` are aliases).
         """
         import pandas as pd
@@ -452,8 +453,9 @@ class Store:
             for k, v in (r["timings_json"] or {}).items():
                 rec[f"time_{k}"] = v
             rec["time_s"] = (r["timings_json"] or {}).get("total")
+            rec["cpu_s"] = (r["timings_json"] or {}).get("total_cpu", rec["info"].get("method_cpu_s"))
             records.append(rec)
-        return pd.DataFrame.from_records(records, columns=None if records else list(COLUMNS) + ["time_s"])
+        return pd.DataFrame.from_records(records, columns=None if records else list(COLUMNS) + ["time_s", "cpu_s"])
 
 
 def _decode(row: sqlite3.Row) -> dict:

@@ -84,6 +84,26 @@ def test_table2_means_counts_and_paper_column(store_path):
     assert [(x["method"], x["category"], x["n"]) for x in mv] == [("tsdf", "closed", 1)]
 
 
+def test_table2_shows_cpu_seconds_when_runs_recorded_them(tmp_path):
+    """CPU seconds: the method's own `total_cpu` timing, else the worker's count in the run's info; the column
+    appears once a row has them (means over the done runs that have them)."""
+    with Store(tmp_path / "s.sqlite") as s:
+        own = _row("a", "dmesh", "torus", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=10.0)
+        own["timings_json"]["total_cpu"] = 7.0
+        s.upsert(own)
+        s.upsert(_row("b", "dmesh", "sphere", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=10.0,
+                      seed=1, info={"method_cpu_s": 9.0}))
+        s.upsert(_row("c", "psr", "torus", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=2.0))
+        df = s.dataframe()
+    rows = {r["method"]: r for r in tables.table2(df, "pointcloud")}
+    assert rows["dmesh"]["cpu_s"] == 8.0 and rows["psr"]["cpu_s"] is None
+    md, csv_path = tables.write_table2(df, tmp_path / "rep", "pointcloud", n_samples=5000)
+    text = md.read_text()
+    assert "| time (s) | CPU (s) |" in text and "| dmesh | closed | 2 | 0 | 1.00 | 1.00 | 10.0 | 8.00 |" in text
+    with open(csv_path) as fh:
+        assert next(csv.DictReader(fh))["cpu_s"] == "8.0"
+
+
 def test_table2_files_raw_csv_and_scaled_markdown(store_path, tmp_path):
     with Store(store_path) as s:
         df = s.dataframe()

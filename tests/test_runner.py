@@ -259,6 +259,7 @@ def test_sweep_stores_done_rows_then_skips_them(fake, tmp_path):
     for r in rows:
         assert r["category"] == "closed" and r["method"] == "fake_hull" and r["input_kind"] == "pointcloud"
         assert r["metrics_json"]["cd_p2s"] >= 0 and "total" in r["timings_json"]
+        assert 0 < r["info_json"]["method_cpu_s"] < 60  # the worker's CPU seconds in the method
         assert r["config_json"]["counter"] == str(counter) and r["code_version"].startswith(("0", "1"))
         assert (runner.db_path.parent / r["mesh_path"]).is_file()
         assert r["started_at"] <= r["finished_at"]

@@ -103,6 +103,8 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         if rows:
             cols = [("method", "method", None), ("category", "class", None), ("n", "n", 1), ("failed", "failed", 1),
                     ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
+            if any(r.get("cpu_s") is not None for r in rows):
+                cols.append(("cpu_s", "CPU (s)", 1))
             if any("fscore" in r for r in rows):
                 cols.append(("fscore", "F-score", 1))
             if any("normal_consistency" in r for r in rows):

@@ -113,7 +113,8 @@ def table2(df, input_kind: str) -> list[dict]:
             row = {"method": method_label(display_name(method, input_kind), clabel), "category": cat,
                    "n": int(len(done)),
                    "failed": int((gc["status"] == "failed").sum()),
-                   "cd_p2s": _mean(done, "cd_p2s"), "cd_l1": _mean(done, "cd_l1"), "time_s": _mean(done, "time_s")}
+                   "cd_p2s": _mean(done, "cd_p2s"), "cd_l1": _mean(done, "cd_l1"), "time_s": _mean(done, "time_s"),
+                   "cpu_s": _mean(done, "cpu_s")}
             for col, names in OPTIONAL_METRICS:
                 s = _metric(done, names)
                 if s is not None:
@@ -258,7 +259,7 @@ def per_shape(df, input_kind: str) -> list[dict]:
                     # A report is a snapshot: a run stored as running had not finished when it was written.
                     "status": "unfinished" if r["status"] == "running" else r["status"],
                     "cd_p2s": num(r.get("cd_p2s")), "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")),
-                    "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error")),
+                    "cpu_s": num(r.get("cpu_s")), "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error")),
                     **(quality_row(r) if r["status"] == "done" else {})})
     return out
 
@@ -312,7 +313,7 @@ TABLE2_CSV_COLUMNS = ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "t
                       "oriented_fraction", "oriented_fraction_min", "oriented_fraction_any_side",
                       "oriented_fraction_any_side_min", "watertight_share", "no_nm_edges_share",
                       "non_manifold_edges", "non_manifold_vertices", "boundary_edges", "topology_match_share",
-                      "self_intersecting_faces"]
+                      "self_intersecting_faces", "cpu_s"]
 
 
 def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_samples: int | None,
@@ -320,6 +321,8 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
     label = {"pointcloud": "point cloud", "multiview": "multi-view"}.get(input_kind, input_kind)
     cols = [("method", "method", None), ("category", "class", None), ("n", "n", 1), ("failed", "failed", 1),
             ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
+    if any(r.get("cpu_s") is not None for r in rows):
+        cols.append(("cpu_s", "CPU (s)", 1))
     if any("fscore" in r for r in rows):
         cols.append(("fscore", "F-score", 1))
     if any("normal_consistency" in r for r in rows):
@@ -331,7 +334,10 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
            f"Input: {label}. {FRAME_NOTE} Means over the successful runs of each class (n), with the number of "
            f"failed runs beside them; a failed run has no CD.", "", CD_NOTE, "",
            f"Metric samples per side: N = {n_samples if n_samples else 'see the store'}. Time: the method's "
-           "wall time in seconds on this machine (metrics excluded).", ""]
+           "wall time in seconds on this machine (metrics excluded). CPU: its CPU seconds over all threads "
+           "(DMesh's own count; for the other methods the worker's, in runs since 5 December). The sweeps run "
+           "each method on one thread, so a wall time well above the CPU time means the run shared its core "
+           "with other work, and the CPU time is the better estimate of its time alone.", ""]
     if rows:
         out.append(markdown(rows, cols))
         out += ["", "## Mesh quality by class", "", QUALITY_NOTE, "",
@@ -358,7 +364,8 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
                 markdown(details, [("method", "method", None), ("shape", "shape", None),
                                    ("category", "class", None), ("seed", "seed", 1), ("status", "status", None),
                                    ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3),
-                                   ("time_s", "time (s)", 1), ("faces", "faces", 1), ("error", "error", None)])]
+                                   ("time_s", "time (s)", 1), ("cpu_s", "CPU (s)", 1), ("faces", "faces", 1),
+                                   ("error", "error", None)])]
         done = [d for d in details if d["status"] == "done"]
         if done:
             out += ["", "## Runs: mesh quality", "",
