@@ -4,7 +4,8 @@ A run's key holds its method's code version (`eval.sweep.code_version`), a hash 
 the method: any edit inside that closure makes every stored run of the method stale, though most edits touch
 code that many runs never execute (a change to the multi-view depth fit cannot change a run of the `paper`
 preset). So while a run executes, its worker also records which project functions ran (`record`), and the
-run's store row keeps, in `code_deps` (`deps_for`), the hash of each of
+run's store row keeps, in `code_deps` (`deps_for`), the list of the following entries and one digest of
+their hashes:
 
     def:PATH::NAME   a module-level function or a method (NAME "Class.method") the run executed, whole
                      (its nested functions and lambdas belong to it)
@@ -16,8 +17,9 @@ run's store row keeps, in `code_deps` (`deps_for`), the hash of each of
                      (`eval.sweep.INPUT_MODULES` and what they import)
     tree:native      the native sources, when the closure imports `dmesh.native`
 
-A later sweep whose closure hash differs from a stored run's adopts that run as current when every one of
-these hashes still holds (`fresh`; `eval.runner.adopt_current`). Hashes are over the syntax tree without
+A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
+hashes, taken from the sources now, give the same digest (`fresh`; `eval.runner.adopt_current`). One digest
+rather than a hash per entry keeps the record small (a run executes a few hundred functions). Hashes are over the syntax tree without
 docstrings, like the code version, so comments, docstrings and layout change nothing.
 
 What the record cannot see, and how it is covered: code that ran before the worker started (imports, the
@@ -167,10 +169,22 @@ def _project_path(filename: str, root: Path) -> str | None:
     return rel.as_posix()
 
 
-def deps_for(method, codes, root: str | Path | None = None, code_root: str | Path | None = None) -> dict[str, str]:
-    """The `code_deps` of a run of `method` that executed `codes` (from `record`), hashed from the sources
-    under `root` (default: the repository). `code_root` is where the executed code was loaded from (default:
-    `root`)."""
+def deps_for(method, codes, root: str | Path | None = None, code_root: str | Path | None = None) -> dict:
+    """The `code_deps` of a run of `method` that executed `codes` (from `record`): {"entries": the sorted
+    entries, "digest": `digest` of their hashes in the sources under `root` (default: the repository)}.
+    `code_root` is where the executed code was loaded from (default: `root`)."""
+    hashes = entry_hashes(method, codes, root, code_root)
+    return {"entries": sorted(hashes), "digest": digest(hashes)}
+
+
+def digest(hashes: Mapping[str, str | None]) -> str:
+    """16 hex digits of the SHA-256 of the sorted "entry=hash" lines of `hashes`."""
+    return _digest("".join(f"{k}={hashes[k]}\n" for k in sorted(hashes)).encode())
+
+
+def entry_hashes(method, codes, root: str | Path | None = None,
+                 code_root: str | Path | None = None) -> dict[str, str]:
+    """{entry: hash} of a run of `method` that executed `codes` (see `deps_for`)."""
     from eval.sweep import INPUT_MODULES, NATIVE_TREES, REPO, method_trees, module_closure, source_hash
 
     base = Path(root if root is not None else REPO).resolve()
@@ -225,12 +239,17 @@ def current(entry: str, root: str | Path | None = None) -> str | None:
     return None
 
 
-def fresh(deps: Mapping[str, str] | None, root: str | Path | None = None) -> bool:
-    """Whether every hash of `deps` (a run's `code_deps`) still holds in the sources under `root`; False
-    without dependencies."""
+def fresh(deps: Mapping | None, root: str | Path | None = None) -> bool:
+    """Whether a run's `code_deps` still hold in the sources under `root`: its entries' hashes now give its
+    digest (or, in the first records, which kept a hash per entry, every hash still holds). False without
+    dependencies."""
     if not deps or not isinstance(deps, Mapping):
         return False
+    if "digest" in deps:
+        entries = deps.get("entries") or []
+        return bool(entries) and digest({e: current(e, root) for e in entries}) == deps["digest"]
     return all(current(entry, root) == value for entry, value in deps.items())
 
 
-__all__ = ["record", "deps_for", "fresh", "current", "file_code", "strip_docstrings", "TRACED_PACKAGES"]
+__all__ = ["record", "deps_for", "entry_hashes", "digest", "fresh", "current", "file_code", "strip_docstrings",
+           "TRACED_PACKAGES"]

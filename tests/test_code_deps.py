@@ -123,15 +123,18 @@ def test_a_recorded_run_stays_current_until_code_it_ran_changes(tmp_path):
         pointcloud.reconstruct(np.asarray(points), mesh.face_normals[faces], config=PointCloudConfig.preset("tiny"))
     assert executed, "nothing recorded (is another trace function set?)"
     deps = code_deps.deps_for(get_method("dmesh"), executed, root=tmp_path, code_root=REPO)
-    ran = {k.split("::")[1] for k in deps if k.startswith("def:dmesh/recon/pointcloud.py::")}
+    hashes = code_deps.entry_hashes(get_method("dmesh"), executed, root=tmp_path, code_root=REPO)
+    assert deps == {"entries": sorted(hashes), "digest": code_deps.digest(hashes)}
+    assert all(len(v) == 16 for v in hashes.values())
+    ran = {k.split("::")[1] for k in hashes if k.startswith("def:dmesh/recon/pointcloud.py::")}
     assert {"reconstruct", "_reconstruct_once", "_Run.setup"} <= ran
-    assert "outline:dmesh/recon/pointcloud.py" in deps and "file:baselines/dmesh_pointcloud.py" in deps
-    assert "file:datasets/sampling.py" in deps  # the input generation, whole
-    assert not any(k.startswith(("def:eval/", "outline:eval/")) for k in deps)  # the harness is not a run's code
+    assert "outline:dmesh/recon/pointcloud.py" in hashes and "file:baselines/dmesh_pointcloud.py" in hashes
+    assert "file:datasets/sampling.py" in hashes  # the input generation, whole
+    assert not any(k.startswith(("def:eval/", "outline:eval/")) for k in hashes)  # the harness is not a run's code
     assert code_deps.fresh(deps, tmp_path)
 
     ran_in = {}
-    for k in deps:
+    for k in hashes:
         if k.startswith("def:"):
             path, _, unit = k[4:].partition("::")
             ran_in.setdefault(path, set()).add(unit)
@@ -172,4 +175,5 @@ def test_nothing_is_recorded_under_another_trace_function():
     finally:
         sys.settrace(None)
     assert executed is None
-    assert not code_deps.fresh(None) and not code_deps.fresh({})
+    assert not code_deps.fresh(None) and not code_deps.fresh({}) and not code_deps.fresh({"entries": [],
+                                                                                           "digest": "0"})

@@ -336,8 +336,8 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     first = run_sweep(sweep, runner)
     with Store(runner.db_path) as store:
         (row,) = store.rows()
-    assert row["base_key"] and row["code_deps"] and all(len(v) == 16 for v in row["code_deps"].values())
-    assert any(k.startswith("file:datasets/") for k in row["code_deps"])
+    assert row["base_key"] and len(row["code_deps"]["digest"]) == 16
+    assert any(k.startswith("file:datasets/") for k in row["code_deps"]["entries"])
 
     monkeypatch.setattr(eval.sweep, "code_version", lambda method, root=REPO: "9.9+src.elsewhere")
     plan = plan_sweep(sweep, runner)
@@ -348,9 +348,8 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     assert counter.read_text().split() == ["0"]
     assert not made_by_earlier_code(row, "9.9+src.elsewhere")
 
-    entry = sorted(row["code_deps"])[0]
-    with Store(runner.db_path) as store:  # as if that file had changed since the run
-        store.upsert({**row, "code_deps": {**row["code_deps"], entry: "0" * 16}})
+    with Store(runner.db_path) as store:  # as if a file it depends on had changed since the run
+        store.upsert({**row, "code_deps": {**row["code_deps"], "digest": "0" * 16}})
         assert made_by_earlier_code(store.get(row["key"]), "9.9+src.elsewhere")
     assert plan_sweep(sweep, runner).pending == 1
     third = run_sweep(sweep, runner)
