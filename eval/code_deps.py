@@ -103,37 +103,37 @@ class _FileCode:
         except (SyntaxError, ValueError):
             self.whole = self.outline = _digest(data)  # unparsable: every unit of it follows the whole file
             return
-        defs: list[tuple[str, ast.AST, list]] = []  # (unit name, def node, the body list that holds it)
+        defs: list[tuple[str, ast.AST]] = []  # (unit name, def node)
 
         def collect(body: list, prefix: str) -> None:
             for node in body:
                 if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                    defs.append((prefix + node.name, node, body))
+                    defs.append((prefix + node.name, node))
                 elif isinstance(node, ast.ClassDef):
                     collect(node.body, f"{prefix}{node.name}.")
 
         collect(tree.body, "")
-        for name, node, _ in defs:
+        for name, node in defs:
             start = min([node.lineno] + [d.lineno for d in node.decorator_list])
             self.spans.append((start, node.end_lineno or node.lineno, name))
         self.whole = _digest(_dump(strip_docstrings(tree)))
-        for name, node, _ in defs:
-            self.units[name] = _digest(_dump(node))
+        for name, node in defs:  # a name defined twice (a property's getter and setter) hashes both
+            self.units[name] = _digest(self.units.get(name, "").encode() + _dump(node))
         # The outline: function bodies out, except those of functions the module-level code names (a
         # decorator, a call at import, an alias), found again in what remains until nothing new is named.
-        bodies = {name: node.body for name, node, _ in defs}
+        bodies = [node.body for _, node in defs]
         keep: set[str] = set()
         while True:
-            for name, node, _ in defs:
-                node.body = bodies[name] if name in keep else [ast.Pass()]
+            for (name, node), body in zip(defs, bodies):
+                node.body = body if name in keep else [ast.Pass()]
             named = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
-            more = {name for name, _, _ in defs if name.rsplit(".", 1)[-1] in named and "." not in name} - keep
+            more = {name for name, _ in defs if name in named} - keep  # module-level functions only
             if not more:
                 break
             keep |= more
         self.outline = _digest(_dump(tree))
-        for name, node, _ in defs:
-            node.body = bodies[name]
+        for (_, node), body in zip(defs, bodies):
+            node.body = body
 
     def unit_at(self, line: int) -> str | None:
         """The unit whose span holds `line` (the outermost: a nested function belongs to its unit)."""

@@ -51,6 +51,14 @@ MODULE = textwrap.dedent('''
             def cube(s):
                 return s ** 3
             return cube(self.size)
+
+        @property
+        def side(self):
+            return self.size
+
+        @side.setter
+        def side(self, value):
+            self.size = value
 ''')
 
 
@@ -63,7 +71,7 @@ def _hashes(path: Path, text: str):
 def test_each_function_has_its_own_hash_and_the_outline_holds_what_runs_at_import(tmp_path):
     path = tmp_path / "mod.py"
     whole, outline, units = _hashes(path, MODULE)
-    assert set(units) == {"_twice", "_build", "area", "unused", "Box.volume"}
+    assert set(units) == {"_twice", "_build", "area", "unused", "Box.volume", "Box.side"}
     fc = file_code(path)
     lines = MODULE.splitlines()
     line = {s.strip(): i + 1 for i, s in enumerate(lines)}
@@ -79,6 +87,9 @@ def test_each_function_has_its_own_hash_and_the_outline_holds_what_runs_at_impor
     # A body edit changes that function only, not the outline.
     assert changed(MODULE.replace("return x + 1", "return x + 2")) == (True, False, {"unused"})
     assert changed(MODULE.replace("return s ** 3", "return s ** 2")) == (True, False, {"Box.volume"})
+    # Both defs of one name (a property's getter and setter) count for it.
+    assert changed(MODULE.replace("return self.size", "return 2 * self.size")) == (True, False, {"Box.side"})
+    assert changed(MODULE.replace("self.size = value", "self.size = 2 * value")) == (True, False, {"Box.side"})
     # Docstrings, comments and layout change nothing.
     assert changed(MODULE.replace('"""Area."""', '"""The area."""').replace("SCALE = 2.0", "SCALE = 2.0  # x")) \
         == (False, False, set())
