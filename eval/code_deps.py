@@ -11,7 +11,8 @@ their hashes:
                      (its nested functions and lambdas belong to it)
     outline:PATH     a module of the method's closure without its function bodies: imports, constants,
                      class bodies, signatures and defaults (what runs at import); a function that this
-                     module-level code names (a decorator, a call at import) stays whole in it
+                     module-level code names (a decorator, a call at import) stays whole in it, and one it
+                     imports from another project module and names there is added as a `def:` entry
     file:PATH        a file the run depends on whole: the method's own package (`baselines/`: the wrapper
                      the registry built before the worker started) and the input generation
                      (`eval.sweep.INPUT_MODULES` and what they import)
@@ -19,8 +20,8 @@ their hashes:
 
 A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
 hashes, taken from the sources now, give the same digest (`fresh`; `eval.runner.adopt_current`). One digest
-rather than a hash per entry keeps the record small (a run executes a few hundred functions). Hashes are over the syntax tree without
-docstrings, like the code version, so comments, docstrings and layout change nothing.
+rather than a hash per entry keeps the record small (a run executes a few hundred functions). Hashes are over
+the syntax tree without docstrings, like the code version, so comments, docstrings and layout change nothing.
 
 What the record cannot see, and how it is covered: code that ran before the worker started (imports, the
 registry's method objects) is in the outlines and `file:` entries; a change to a function that did not run
@@ -98,6 +99,7 @@ class _FileCode:
         data = path.read_bytes()
         self.units: dict[str, str] = {}
         self.spans: list[tuple[int, int, str]] = []
+        self.imported: list[tuple[str, str]] = []
         try:
             tree = ast.parse(data, str(path))
         except (SyntaxError, ValueError):
@@ -134,6 +136,11 @@ class _FileCode:
         self.outline = _digest(_dump(tree))
         for (_, node), body in zip(defs, bodies):
             node.body = body
+        # Names imported from project modules that the module-level code names (a function of another
+        # module called at import): `deps_for` adds their defs.
+        self.imported = sorted((node.module, alias.name) for node in tree.body if isinstance(node, ast.ImportFrom)
+                               and node.module and not node.level for alias in node.names
+                               if (alias.asname or alias.name) in named)
 
     def unit_at(self, line: int) -> str | None:
         """The unit whose span holds `line` (the outermost: a nested function belongs to its unit)."""
@@ -185,7 +192,8 @@ def digest(hashes: Mapping[str, str | None]) -> str:
 def entry_hashes(method, codes, root: str | Path | None = None,
                  code_root: str | Path | None = None) -> dict[str, str]:
     """{entry: hash} of a run of `method` that executed `codes` (see `deps_for`)."""
-    from eval.sweep import INPUT_MODULES, NATIVE_TREES, REPO, method_trees, module_closure, source_hash
+    from eval.sweep import (INPUT_MODULES, NATIVE_TREES, REPO, _module_file, method_trees, module_closure,
+                            source_hash)
 
     base = Path(root if root is not None else REPO).resolve()
     loaded = Path(code_root).resolve() if code_root is not None else base
@@ -201,8 +209,13 @@ def entry_hashes(method, codes, root: str | Path | None = None,
             continue
         if tree in whole or tree.split("/")[0] in WHOLE_PACKAGES:
             deps[f"file:{tree}"] = fc.whole
-        else:
-            deps[f"outline:{tree}"] = fc.outline
+            continue
+        deps[f"outline:{tree}"] = fc.outline
+        for module, name in fc.imported:
+            src = _module_file(module, base)
+            other = file_code(src) if src is not None else None
+            if other is not None and name in other.units:
+                deps[f"def:{src.relative_to(base).as_posix()}::{name}"] = other.units[name]
     for code in codes:
         rel = _project_path(code.co_filename, loaded)
         if rel is None or f"file:{rel}" in deps or rel.split("/")[0] in WHOLE_PACKAGES:

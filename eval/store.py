@@ -439,8 +439,8 @@ class Store:
 
         Metric columns keep their names (e.g. `cd_p2s`); timing columns are prefixed `time_` and
         `time_s` is the method's total wall time in seconds; `cpu_s` its CPU seconds (all threads): the method's
-        own `total_cpu` timing, else the worker's count (`info["method_cpu_s"]`), else None. `config_json`, `inputs_json` and `info_json`
-        hold decoded dicts (`config` and `info` are aliases).
+        own `total_cpu` timing, else the worker's count (`info["method_cpu_s"]`), else None. `config_json`,
+        `inputs_json` and `info_json` hold decoded dicts (`config` and `info` are aliases).
         """
         import pandas as pd
 

@@ -17,8 +17,14 @@ REPO = Path(__file__).resolve().parents[1]
 MODULE = textwrap.dedent('''
     """A module."""
     import math
+    from os.path import basename, join
 
     SCALE = 2.0
+    ROOT = join("a", "b")
+
+
+    def name_of(p):
+        return basename(p)
 
 
     def _twice(f):
@@ -71,8 +77,9 @@ def _hashes(path: Path, text: str):
 def test_each_function_has_its_own_hash_and_the_outline_holds_what_runs_at_import(tmp_path):
     path = tmp_path / "mod.py"
     whole, outline, units = _hashes(path, MODULE)
-    assert set(units) == {"_twice", "_build", "area", "unused", "Box.volume", "Box.side"}
+    assert set(units) == {"_twice", "_build", "area", "unused", "Box.volume", "Box.side", "name_of"}
     fc = file_code(path)
+    assert fc.imported == [("os.path", "join")]  # called at import; `basename` only inside a function
     lines = MODULE.splitlines()
     line = {s.strip(): i + 1 for i, s in enumerate(lines)}
     assert fc.unit_at(line["def inner(x):"]) == "_twice"         # a nested function belongs to its unit

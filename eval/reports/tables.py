@@ -259,7 +259,8 @@ def per_shape(df, input_kind: str) -> list[dict]:
                     # A report is a snapshot: a run stored as running had not finished when it was written.
                     "status": "unfinished" if r["status"] == "running" else r["status"],
                     "cd_p2s": num(r.get("cd_p2s")), "cd_l1": num(r.get("cd_l1")), "time_s": num(r.get("time_s")),
-                    "cpu_s": num(r.get("cpu_s")), "faces": num(r.get("faces", r.get("n_faces"))), "error": text(r.get("error")),
+                    "cpu_s": num(r.get("cpu_s")), "faces": num(r.get("faces", r.get("n_faces"))),
+                    "error": text(r.get("error")),
                     **(quality_row(r) if r["status"] == "done" else {})})
     return out
 
