@@ -151,6 +151,7 @@ class SweepSummary:
 
     total: int = 0
     skipped: int = 0      # already done (or failed, without retry_failed) when the sweep started
+    kept: int = 0         # of those, done under an earlier code version whose executed code is unchanged
     done: int = 0         # computed by this sweep
     failed: int = 0       # failed in this sweep
     elsewhere: int = 0    # finished (done or failed) by another sweep sharing the store; this one waited
@@ -161,6 +162,8 @@ class SweepSummary:
         """One line for the CLI, e.g. "3 runs: 1 done now, 0 failed now, 0 already stored, 2 finished by
         another sweep sharing the store"."""
         text = f"{self.total} runs: {self.done} done now, {self.failed} failed now, {self.skipped} already stored"
+        if self.kept:
+            text += f" ({self.kept} under earlier code versions, current: the code they ran is unchanged)"
         if self.elsewhere:
             text += f", {self.elsewhere} finished by another sweep sharing the store"
         return text
@@ -799,7 +802,7 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
             planned = [r.key for r in runs]
             runs = adopt_current(runs, store)
             kept = sum(a != r.key for a, r in zip(planned, runs))
-        summary = SweepSummary(total=len(runs), db=str(runner.db_path), keys=[r.key for r in runs])
+        summary = SweepSummary(total=len(runs), kept=kept, db=str(runner.db_path), keys=[r.key for r in runs])
         pending, retry_attempts = [], {}
         metrics_now = _metrics_now(runner)
         for spec in runs:

@@ -344,7 +344,8 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     assert (plan.stored, plan.kept, plan.pending) == (1, 1, 0)
     assert "1 stored (1 under earlier code versions, current: the code they ran is unchanged), 0 to run" in plan.line()
     again = run_sweep(sweep, runner)
-    assert (again.skipped, again.done, again.keys) == (1, 0, first.keys)
+    assert (again.skipped, again.kept, again.done, again.keys) == (1, 1, 0, first.keys)
+    assert "1 already stored (1 under earlier code versions, current" in again.line()
     assert counter.read_text().split() == ["0"]
     assert not made_by_earlier_code(row, "9.9+src.elsewhere")
 
