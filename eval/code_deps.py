@@ -11,8 +11,9 @@ their hashes:
                      (its nested functions and lambdas belong to it)
     outline:PATH     a module of the method's closure without its function bodies: imports, constants,
                      class bodies, signatures and defaults (what runs at import); a function that this
-                     module-level code names (a decorator, a call at import) stays whole in it, and one it
-                     imports from another project module and names there is added as a `def:` entry
+                     module-level code names (a decorator, a call at import) stays whole in it, and one of
+                     another project module that it names (imported by name, or as an attribute of an
+                     imported module) is added as a `def:` entry
     file:PATH        a file the run depends on whole: the method's own package (`baselines/`: the wrapper
                      the registry built before the worker started) and the input generation
                      (`eval.sweep.INPUT_MODULES` and what they import)
@@ -134,13 +135,24 @@ class _FileCode:
                 break
             keep |= more
         self.outline = _digest(_dump(tree))
+        attrs = {(n.value.id, n.attr) for n in ast.walk(tree)  # in the outline: what runs at import
+                 if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)}
         for (_, node), body in zip(defs, bodies):
             node.body = body
         # Names imported from project modules that the module-level code names (a function of another
         # module called at import): `deps_for` adds their defs.
-        self.imported = sorted((node.module, alias.name) for node in tree.body if isinstance(node, ast.ImportFrom)
-                               and node.module and not node.level for alias in node.names
-                               if (alias.asname or alias.name) in named)
+        imported = set()
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                for alias in node.names:
+                    local = alias.asname or alias.name
+                    if local in named:  # `from m import f` ... f(...); or `from pkg import mod` ... mod.f(...)
+                        imported.add((node.module, alias.name))
+                        imported.update((f"{node.module}.{alias.name}", a) for n, a in attrs if n == local)
+            elif isinstance(node, ast.Import):
+                for alias in node.names:  # `import pkg.mod as m` ... m.f(...)
+                    imported.update((alias.name, a) for n, a in attrs if n == (alias.asname or alias.name))
+        self.imported = sorted(imported)
 
     def unit_at(self, line: int) -> str | None:
         """The unit whose span holds `line` (the outermost: a nested function belongs to its unit)."""

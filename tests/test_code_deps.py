@@ -17,10 +17,12 @@ REPO = Path(__file__).resolve().parents[1]
 MODULE = textwrap.dedent('''
     """A module."""
     import math
+    import os.path as osp
     from os.path import basename, join
 
     SCALE = 2.0
     ROOT = join("a", "b")
+    HOME = osp.normpath("a")
 
 
     def name_of(p):
@@ -79,7 +81,8 @@ def test_each_function_has_its_own_hash_and_the_outline_holds_what_runs_at_impor
     whole, outline, units = _hashes(path, MODULE)
     assert set(units) == {"_twice", "_build", "area", "unused", "Box.volume", "Box.side", "name_of"}
     fc = file_code(path)
-    assert fc.imported == [("os.path", "join")]  # called at import; `basename` only inside a function
+    # Called at import (by name, or as a module's attribute); `basename` only inside a function.
+    assert fc.imported == [("os.path", "join"), ("os.path", "normpath")]
     lines = MODULE.splitlines()
     line = {s.strip(): i + 1 for i, s in enumerate(lines)}
     assert fc.unit_at(line["def inner(x):"]) == "_twice"         # a nested function belongs to its unit
