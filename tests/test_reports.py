@@ -236,6 +236,9 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
         r = _row("pl", "dmesh", "plant", "mixed", "done", metrics={"cd_p2s": 2e-3, "faces": 1000}, time_s=50.0)
         r.update(config_label="preset=paper")
         s.upsert(r)
+        r = _row("pf", "dmesh", "plant", "mixed", "failed", error="ValueError: the method returned an empty mesh")
+        r.update(config_label="num_init=1000,steps_phase1=200")
+        s.upsert(r)
         df = s.dataframe()
     assert interpolate([(2000, 8e-3), (8000, 4e-3)], 4000) == pytest.approx(8e-3 / math.sqrt(2))
     assert interpolate([(2000, 8e-3), (8000, 4e-3)], 1000) is None
@@ -256,6 +259,9 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
     text = (tmp_path / "rep" / "recipes_size.md").read_text()
     assert ("| paper preset | closed | 1 | 5.66 |" in text
             and (tmp_path / "rep" / "figures" / "recipes_size.png").is_file())
+    # A failed run has no CD: listed on its own, with its error.
+    assert ("| plant | mixed | fast start, 1000 seeds + 200 steps | ValueError: the method returned an empty mesh |"
+            in text.split("## Failed runs")[1])
 
 
 def test_reports_take_the_latest_finished_run_over_a_rerun_left_running(tmp_path):

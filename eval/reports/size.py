@@ -108,6 +108,23 @@ def size_rows(df) -> list[dict]:
                                        not x["recipe"].startswith("paper preset"), x["recipe"]))
 
 
+def failed_rows(df) -> list[dict]:
+    """The failed runs of the study (the fast start at some seed count, or a recipe with gradient steps): shape,
+    class, recipe and error, by class and shape. They have no CD, so the tables above leave them out."""
+    if df is None or not len(df):
+        return []
+    sub = df[(df["method"] == "dmesh") & (df["input_kind"] == "pointcloud") & (df["status"] == "failed")]
+    rows = []
+    for _, r in sub.iterrows():
+        label = str(r["config_label"])
+        recipe = _recipe(label) or (f"fast start, {label.split('=')[1]} seeds" if SIZE_LABEL.match(label) else None)
+        if recipe is not None:
+            rows.append({"shape": r["shape"], "category": r["category"], "recipe": recipe,
+                         "error": str(r.get("error") or "")})
+    order = {c: i for i, c in enumerate(CLASSES)}
+    return sorted(rows, key=lambda x: (order.get(x["category"], 9), x["shape"], x["recipe"]))
+
+
 def size_plot(df, rows: list[dict], out: Path) -> Path | None:
     """CD p2s against faces (log-log), one panel per class; None without a shape that has both recipes."""
     import matplotlib
@@ -201,6 +218,12 @@ def write_size(df, out: str | Path) -> list[Path]:
     else:
         md.append("_No paper-preset point-cloud run in the store yet: `make reproduce-recipes` (recipes.yaml and "
                   "recipes_size.yaml)._\n")
+    failed = failed_rows(df)
+    if failed:
+        md += ["", "## Failed runs", "", "Runs of the study that ended without a mesh; the tables above leave them "
+               "out, so a class there may count fewer shapes:", "",
+               markdown(failed, [("shape", "shape", None), ("category", "class", None), ("recipe", "recipe", None),
+                                 ("error", "error", None)])]
     md += ["", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
     md_path, csv_path = out / "recipes_size.md", out / "recipes_size.csv"
     write_text(md_path, "\n".join(md))
@@ -208,4 +231,4 @@ def write_size(df, out: str | Path) -> list[Path]:
     return [md_path, csv_path] + ([fig] if fig else [])
 
 
-__all__ = ["is_size_study", "size_points", "interpolate", "size_rows", "size_plot", "write_size"]
+__all__ = ["is_size_study", "size_points", "interpolate", "size_rows", "failed_rows", "size_plot", "write_size"]
