@@ -493,7 +493,7 @@ def test_fast_makes_a_shredded_mesh_again_from_the_smoothed_input(caplog):
     `FRAGMENTED_BOUNDARY` boundary edges per face). `fast` then makes it again from the smoothed input: the
     mesh is the `noisy` preset's (watertight here), closer to the torus, and the info keeps the first attempt.
     The clean sample is made once."""
-    from dmesh.recon.config import FRAGMENTED_BOUNDARY
+    from dmesh.recon.config import FRAGMENTED_BOUNDARY, FRAGMENTED_RIM
     from dmesh.recon.init import NOISY_RATIO
     from dmesh.repair import boundary_edge_count
 
@@ -507,6 +507,7 @@ def test_fast_makes_a_shredded_mesh_again_from_the_smoothed_input(caplog):
     assert once.info["noise_ratio"] < NOISY_RATIO and once.info["smooth_k"] == 0
     per_face = boundary_edge_count(once.mesh.faces) / len(once.mesh.faces)
     assert per_face > FRAGMENTED_BOUNDARY
+    assert per_face * np.sqrt(len(once.mesh.faces)) > FRAGMENTED_RIM  # per root face: shreds, not a rim
     attempt = redone.info["fragmented_attempt"]
     assert attempt["boundary_edges_per_face"] == pytest.approx(per_face, abs=1e-4)
     assert attempt["faces"] == len(once.mesh.faces) and attempt["seconds"] < redone.timings["total"]
@@ -521,6 +522,30 @@ def test_fast_makes_a_shredded_mesh_again_from_the_smoothed_input(caplog):
     assert "fragmented_attempt" not in clean.info and clean.info["smooth_k"] == 0
     with pytest.raises(ValueError, match="redo_fragmented"):
         PointCloudConfig(redo_fragmented=-0.1)
+
+
+def test_fast_does_not_take_a_small_intact_mesh_with_much_rim_for_shreds():
+    """A clean cloud of suzanne at 1000 seeds gives a mesh of about 2K faces with more than
+    `FRAGMENTED_BOUNDARY` boundary edges per face (its eyes, ears and rims), yet few per root face (an intact
+    surface's rim grows with the square root of its face count, shreds' boundary with the count): `fast` makes
+    it once, as the same preset without the redo makes it."""
+    import trimesh
+
+    from common import shared_mesh
+    from datasets import normalize, sampling
+    from dmesh.recon.config import FRAGMENTED_BOUNDARY, FRAGMENTED_RIM
+    from dmesh.repair import boundary_edge_count
+
+    gt, _ = normalize.normalize(trimesh.load(shared_mesh("mixed/suzanne.obj"), force="mesh"))
+    pts, nrm = sampling.sample_points(gt, 20_000, seed=0)
+    res = reconstruct(pts, nrm, PointCloudConfig.fast(num_init=1000))
+    faces = np.asarray(res.mesh.faces)
+    boundary = boundary_edge_count(faces)
+    assert boundary > FRAGMENTED_BOUNDARY * len(faces)          # the per-face test alone would redo it
+    assert boundary < 0.5 * FRAGMENTED_RIM * np.sqrt(len(faces))
+    assert "fragmented_attempt" not in res.info and res.info["smooth_k"] == 0
+    once = reconstruct(pts, nrm, PointCloudConfig.fast(num_init=1000, redo_fragmented=0.0))
+    np.testing.assert_array_equal(res.mesh.faces, once.mesh.faces)
 
 
 def test_phase2_ends_once_the_mesh_has_settled():

@@ -27,8 +27,12 @@ NOISY_SMOOTH_K = 120
 FAST_SEEDS = 100_000
 #: Most real seeds of the `fast` and `noisy` presets when they smooth their input; why: docs/preset_choices.md.
 SMOOTHED_SEEDS = 20_000
-#: Boundary edges per face above which `fast` takes its unsmoothed output for a sign of missed noise.
+#: Boundary edges per face above which `fast` takes its unsmoothed output for a sign of missed noise ...
 FRAGMENTED_BOUNDARY = 0.1
+#: ... when there are also more than this many times the square root of its face count. Shreds have boundary in
+#: proportion to their faces; an intact surface's rim grows with the square root of the face count, so a small
+#: intact mesh of a shape with much rim has over 0.1 boundary edges per face. Why: docs/preset_choices.md.
+FRAGMENTED_RIM = 20.0
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
 
@@ -109,8 +113,9 @@ class PointCloudConfig(Presets):
                                     # smoothed points still lie about a seed spacing off the surface at dense
                                     # seeding, and the mesh falls apart; 0: num_init always
     redo_fragmented: float = 0.0    # > 0 with auto_smooth_k: an unsmoothed run whose mesh has more boundary edges
-                                    # than this many per face is run again smoothed (not upstream: noise that
-                                    # noise_ratio missed shreds the mesh); 0: off
+                                    # than this many per face (and than FRAGMENTED_RIM x sqrt(faces)) is run
+                                    # again smoothed (not upstream: noise that noise_ratio missed shreds the
+                                    # mesh); 0: off
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
     voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
     carve: float = 0.0              # > 0: imaginary points on first-mesh faces this many seed spacings from
@@ -210,8 +215,9 @@ class PointCloudConfig(Presets):
         steps cost accuracy), one-sheet extraction (`dmesh.extract`). An input that looks noisy
         (`noise_ratio` above `NOISY_RATIO`) is smoothed first as `noisy` smooths it (`auto_smooth_k`), and then
         gives at most 20K seeds (`smoothed_seeds`); clean input is not smoothed. An unsmoothed run whose mesh
-        comes out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face, noise that `noise_ratio`
-        missed) is run again smoothed (`redo_fragmented`). Why each choice: docs/preset_choices.md; why no
+        comes out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face and `FRAGMENTED_RIM` times
+        the square root of its face count, noise that `noise_ratio` missed) is run again smoothed
+        (`redo_fragmented`). Why each choice: docs/preset_choices.md; why no
         phase-1 step: `python -m eval.bench recipes`."""
         base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=FAST_SEEDS, voronoi="poles",
                     smoothed_seeds=SMOOTHED_SEEDS, redo_fragmented=FRAGMENTED_BOUNDARY,

@@ -31,8 +31,9 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    `orient`, their closed, outward surface (`dmesh.extract.surface`: tets inside / outside, small holes
    filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
 5. With `redo_fragmented` > 0 and `auto_smooth_k` > 0 (not upstream; the `fast` preset): a run that did not
-   smooth its input and whose mesh has more than `redo_fragmented` boundary edges per face (noise that
-   `noise_ratio` missed: the mesh is in shreds) is done again with the input smoothed (`auto_smooth_k`
+   smooth its input and whose mesh has more than `redo_fragmented` boundary edges per face and more than
+   `FRAGMENTED_RIM` times the square root of its face count (noise that `noise_ratio` missed: the mesh is in
+   shreds; a small intact mesh has many boundary edges per face but few per root face) is done again with the input smoothed (`auto_smooth_k`
    neighbours, `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
    timings' "total" includes it.
 
@@ -58,7 +59,7 @@ from dmesh.geometry import gather
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
-from dmesh.recon.config import POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
+from dmesh.recon.config import FRAGMENTED_RIM, POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
 from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_and_voronoi, smooth_points,
                               statistical_inliers)
 from dmesh.recon.loop import (Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces, mesh_mask,
@@ -329,8 +330,9 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     result = _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe)
     if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0:
         faces = np.asarray(result.mesh.faces)
-        per_face = boundary_edge_count(faces) / max(len(faces), 1)
-        if per_face > cfg.redo_fragmented:
+        boundary = boundary_edge_count(faces)
+        per_face = boundary / max(len(faces), 1)
+        if per_face > cfg.redo_fragmented and boundary > FRAGMENTED_RIM * np.sqrt(len(faces)):
             log.warning("the mesh came out in shreds (%.2f boundary edges per face; over %.2f): the input is "
                         "noisier than it measured (%.3f), making it again from the smoothed input (%d neighbours)",
                         per_face, cfg.redo_fragmented, result.info["noise_ratio"], cfg.auto_smooth_k)
