@@ -27,8 +27,9 @@ the syntax tree without docstrings, like the code version, so comments, docstrin
 What the record cannot see, and how it is covered: code that ran before the worker started (imports, the
 registry's method objects) is in the outlines and `file:` entries; a change to a function that did not run
 can only start to matter through a change to code that did run (the caller, or module-level code), which
-makes the run stale. A run recorded while another trace function was set (a debugger, coverage) records
-nothing and is never adopted.
+makes the run stale. A run recorded while another trace function was set (a debugger, coverage), and a run
+resumed from an earlier attempt's checkpoint (that attempt's code is not in the record), record nothing and
+are never adopted.
 
 The record is `sys.settrace` with a global trace function that notes each new frame's code object and
 returns None, so no line of the run is traced; its cost is one Python call per Python function call of

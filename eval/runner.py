@@ -426,6 +426,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
             gt = load_gt(gt_path)
             inputs.monitor = gt_monitor(gt)
             inputs.checkpoint = str(checkpoint_path(work, spec.key))
+            resumed = Path(inputs.checkpoint).exists()  # an earlier attempt ran code this one may skip
             cpu0 = time.process_time()
             result = method.reconstruct(inputs, config)
             cpu_s = time.process_time() - cpu0
@@ -446,7 +447,7 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
                 "method_cpu_s": cpu_s}  # CPU seconds of the worker (all threads) in the method
         return {"status": "done", "metrics": dict(metrics), "timings": timings,
                 "info": info, "peak_memory_mb": float(result.peak_memory_mb),
-                "mesh_path": str(out), "code_deps": _code_deps(method, spec, executed)}
+                "mesh_path": str(out), "code_deps": None if resumed else _code_deps(method, spec, executed)}
     except Exception as exc:  # noqa: BLE001 - every failure of a run is a result (stored as failed)
         log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())
         drop_checkpoint(work, spec.key)  # a failing run starts over when retried
@@ -455,7 +456,9 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
 
 def _code_deps(method, spec: RunSpec, executed) -> dict | None:
     """The hashes of the code the run executed (`eval.code_deps.deps_for`), or None when nothing was recorded,
-    the method names its own code trees, or its sources changed while it ran (the record would not match)."""
+    the method names its own code trees, or its sources changed while it ran (the record would not match).
+    A run resumed from an earlier attempt's checkpoint records none either (`execute_run`): the code that
+    attempt ran is not in this one's record."""
     if executed is None or getattr(method, "code_trees", None) or sources_changed(method, spec.code_version):
         return None
     try:

@@ -395,6 +395,7 @@ def test_checkpoint_outlives_only_a_dead_worker_and_is_resumed(fake, tmp_path):
     with Store(runner.db_path) as store:
         (row,) = store.rows()
     assert row["info_json"]["resumed"] is True
+    assert row["code_deps"] is None  # what the first attempt ran is not in this attempt's record
     assert row["timings_json"]["earlier_attempts"] == 5.0
     assert row["timings_json"]["total"] >= 5.0               # the earlier attempt's time is counted
 
