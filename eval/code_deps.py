@@ -42,6 +42,7 @@ import contextlib
 import functools
 import hashlib
 import sys
+import threading
 from pathlib import Path
 from typing import Iterator, Mapping
 
@@ -53,7 +54,8 @@ WHOLE_PACKAGES = ("baselines",)
 
 @contextlib.contextmanager
 def record() -> Iterator[set | None]:
-    """Collects the code objects of every Python function this thread calls inside the block.
+    """Collects the code objects of every Python function called inside the block, by this thread and by
+    threads it starts there.
 
     Yields the set being filled, or None when another trace function is already set (nothing is recorded:
     the caller then stores no dependencies)."""
@@ -68,10 +70,12 @@ def record() -> Iterator[set | None]:
         return None
 
     sys.settrace(tracer)
+    threading.settrace(tracer)  # and threads started inside the block
     try:
         yield seen
     finally:
         sys.settrace(None)
+        threading.settrace(None)
 
 
 def _digest(data: bytes) -> str:

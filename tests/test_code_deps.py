@@ -183,6 +183,23 @@ def test_a_recorded_run_stays_current_until_code_it_ran_changes(tmp_path):
     assert not code_deps.fresh(deps, tmp_path)
 
 
+def test_the_record_sees_threads_started_inside_it():
+    import threading
+
+    import torch
+
+    from dmesh.geometry import face_normals
+
+    def work():
+        face_normals(torch.eye(3, dtype=torch.float64), torch.tensor([[0, 1, 2]]))
+
+    with code_deps.record() as executed:
+        t = threading.Thread(target=work)
+        t.start()
+        t.join()
+    assert face_normals.__code__ in executed
+
+
 def test_nothing_is_recorded_under_another_trace_function():
     import sys
 
