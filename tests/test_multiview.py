@@ -339,6 +339,25 @@ def test_smooth_from_pool_fits_a_quadratic_and_averages_the_pool():
 
 
 @needs_gl
+def test_depth_start_fit_is_oriented_so_its_shred_check_counts_the_surface(sphere_views, one_thread, monkeypatch):
+    """The depth start's point-cloud fit makes its oriented surface (though the start keeps only its DMesh), so
+    the `fast` preset's check for a shredded mesh (`redo_fragmented`) counts the same boundary as on point
+    clouds."""
+    from dmesh.recon import pointcloud
+
+    seen, original = [], pointcloud.reconstruct
+
+    def spy(points, normals=None, config=None, **kw):
+        seen.append(config)
+        return original(points, normals, config, **kw)
+
+    monkeypatch.setattr(pointcloud, "reconstruct", spy)
+    res = reconstruct(sphere_views, MultiViewConfig.depth(init_points=5000))
+    assert [c.orient for c in seen] == [True] and seen[0].redo_fragmented > 0
+    assert res.info["init_depth"]["preset"] == "fast"
+
+
+@needs_gl
 def test_noisy_depth_start_fits_the_subset_from_every_pixel(sphere, sphere_views, one_thread):
     """With depth noise the "auto" start fits its points from all the lifted pixels and takes the point-cloud
     `fast` preset; its mesh is closer to the sphere than the start that smooths the subset alone

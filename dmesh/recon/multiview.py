@@ -130,7 +130,10 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
         log.info("depth start: the %d points fitted from their %d nearest of %d lifted pixels", len(pts), k,
                  len(pixels))
         pts, preset = smooth_from_pool(pts, pixels, k), cfg.init_pooled_preset
-    pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=False)  # its mesh is not used
+    # Its mesh is not used, but it is oriented: the preset's check for a shredded mesh (`redo_fragmented`) then
+    # counts the boundary edges of the oriented surface, as on point clouds (the raw extraction of a shredded
+    # sheet counts fewer).
+    pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=True)
     fit = reconstruct_points(pts, None, pc_cfg)
     dm = fit.dmesh
     back = 1.0 / fit.scale
