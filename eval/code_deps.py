@@ -21,7 +21,7 @@ their hashes:
 
 A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
 hashes, taken from the sources now, give the same digest (`fresh`; `eval.runner.adopt_current`). One digest
-rather than a hash per entry keeps the record small (a run executes a few hundred functions). Hashes are over
+rather than a hash per entry keeps the record small. Hashes are over
 the syntax tree without docstrings, like the code version, so comments, docstrings and layout change nothing.
 
 What the record cannot see, and how it is covered: code that ran before the worker started (imports, the
