@@ -152,3 +152,13 @@ def knn_search(data: _F64, queries: _F64, k: int, num_threads: int) -> _I32: ...
 @overload
 def knn_search(data: _F32, queries: _F32, k: int, num_threads: int) -> _I32:
     """(Q, k) ids of the k nearest data points of every query, nearest first, ties to the smaller id."""
+
+# ---------------------------------------------------------------------- points and meshes (bind_points, bind_mesh)
+def jet_smooth(points: _F64, k: int, degree_fitting: int = 2, degree_monge: int = 2, parallel: int = 0) -> _F64:
+    """(N, 3) each point moved onto the jet fitted to its k nearest neighbours (CGAL::jet_smooth_point_set)."""
+
+def refine_and_fair(vertices: _F64, faces: _I32, patch: _U8, density: float,
+                    continuity: int) -> tuple[_F64, _I32, _U8, bool]:
+    """(vertices (V', 3), faces (F', 3), patch (F',), solved) after CGAL's refine of the patch faces of a
+    consistently oriented 2-manifold and fair of every vertex with only patch faces around it; the input's
+    vertices keep their indices, new ones follow."""

@@ -23,7 +23,9 @@ The output surface (`surface`, `extract(..., orient=True)`): the faces alone car
 a hole or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets
 are labelled inside or outside by walks to the hull, and the mesh faces between an inside and an outside
 tet form the closed part, wound outward (open sheets that fooled the walks are set aside and the walks
-repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their own vertices and pinches
+repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their own vertices, larger ones
+(parts of a closed surface the input did not sample, e.g. what a scanner did not see) are closed by the
+inside tets' own boundary across them, refined and faired (`dmesh.solid.large_lids`, `_fair_lids`), and pinches
 are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
 do not share an edge with the closed part, wound consistently and facing the input normals when given;
@@ -130,6 +132,12 @@ def _cluster_normals(points: np.ndarray, tets: np.ndarray, real_tets: np.ndarray
     return vectors[:, :, 0]
 
 
+#: `refine`'s density control factor for the lids (`_fair_lids`): CGAL's default, sqrt(2), leaves lids across
+#: a large hole with few new vertices there (their scale is the lid's own long edges), so the fair surface
+#: stays close to the flat lid; `python -m eval.bench lids` compares factors.
+LID_DENSITY = 4.0
+
+
 @dataclass(frozen=True)
 class SurfaceConfig:
     """Settings of `surface` (counts and fractions; no lengths)."""
@@ -148,6 +156,10 @@ class SurfaceConfig:
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     revote: bool = True        # vote again with the open sheets set aside (dmesh.solid.open_sheet_walls)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
+    lids: bool = True          # ... and close holes of more than max_hole edges with the inside tets' boundary
+                               # (dmesh.solid.large_lids), refined and faired (dmesh.native.refine_and_fair)
+    fairing: int = 1           # the lids' fairing continuity (0 membrane, 1 thin plate, 2 curvature
+                               # variation); -1: the lids stay faces of the triangulation, flat
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
     turn_faces: bool = True    # a sheet face whose input normals clearly disagree turns on its own (False:
                                # whole sheets only, for vectors that are not normals, e.g. towards cameras)
@@ -168,6 +180,8 @@ class SurfaceConfig:
         for name in ("max_hole", "max_crumb", "repair_rounds"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"SurfaceConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if int(self.fairing) not in (-1, 0, 1, 2):
+            raise ValueError(f"SurfaceConfig.fairing must be -1, 0, 1 or 2, got {self.fairing}")
 
 
 @dataclass
@@ -181,15 +195,17 @@ class Surface:
             vertex per sheet: `dmesh.repair.split_fans`; `_surface_mesh` moves them apart).
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
-            tets_flipped, closed_faces, holes_filled, hole_faces, holes_left (holes_crossing of them left open
-            because their fill crossed the surface), fins_dropped, crumbs_dropped, split_vertices,
-            folds_dropped, sheet_faces; vote ("parity" or "winding").
+            tets_flipped, closed_faces, lids, lid_faces, holes_filled, hole_faces, holes_left (holes_crossing
+            of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
+            split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
+        lid: (K,) bool, the faces of the lids over large holes of the closed part (`SurfaceConfig.lids`).
     """
 
     faces: np.ndarray
     vertices: np.ndarray
     closed: int
     info: dict = field(default_factory=dict)
+    lid: np.ndarray | None = None
 
 
 def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = None) -> Surface:
@@ -208,7 +224,8 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     walls = np.asarray(walls, dtype=bool)
     points = pd.points
     if not walls.any():
-        return Surface(np.zeros((0, 3), np.int64), np.arange(len(points)), 0, {"closed_faces": 0, "sheet_faces": 0})
+        return Surface(np.zeros((0, 3), np.int64), np.arange(len(points)), 0, {"closed_faces": 0, "sheet_faces": 0},
+                       np.zeros(0, bool))
     if normals is not None:
         normals = (np.asarray(normals[0], dtype=np.float64), np.asarray(normals[1], dtype=np.float64))
     sign = None if normals is None else solid.wall_signs(pd, walls, *normals, workers=cfg.workers)
@@ -232,10 +249,18 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
             "regions_dropped": dropped, "sheets_set_aside": int(aside.sum()), "tets_flipped": flipped,
             "closed_faces": int(len(closed))}
     sheet = pd.faces[walls & ~between].astype(np.int64)
+    lid = np.zeros(len(closed), bool)
     if cfg.clean:
+        if cfg.lids and len(closed):
+            lids = solid.oriented_boundary(pd, inside, np.flatnonzero(between & ~walls))
+            lids = lids[solid.large_lids(closed, lids, cfg.max_hole)]
+            closed = np.concatenate([closed, lids])
+            lid = np.r_[lid, np.ones(len(lids), bool)]
+            info.update(lids=repair.edge_pieces(lids)[0], lid_faces=int(len(lids)))
         fill, filled, left, crossing = (repair.fill_holes(points, closed, cfg.max_hole, others=sheet) if len(closed)
                                         else (closed, 0, 0, 0))
         closed = np.concatenate([closed, fill])
+        lid = np.r_[lid, np.zeros(len(fill), bool)]
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
         crumbs = repair.crumbs(sheet, cfg.max_crumb)
@@ -247,6 +272,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
                                  turn_faces=cfg.turn_faces)
     faces = np.concatenate([closed, sheet])
+    lid = np.r_[lid, np.zeros(len(sheet), bool)]
     vertices = np.arange(len(points))
     if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices, which
         # `_surface_mesh` moves apart: copies left on one point would make the branch or pinch again in any
@@ -257,7 +283,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         kept = np.flatnonzero(keep)
         crumbs = repair.closed_crumbs(faces[kept], cfg.max_crumb)
         keep[kept[crumbs]] = False
-        faces = faces[keep]
+        faces, lid = faces[keep], lid[keep]
         closed_count = int(keep[:len(closed)].sum())
         info.update(split_vertices=int(len(vertices) - len(points)), folds_dropped=folds,
                     closed_crumbs_dropped=int(crumbs.sum()))
@@ -265,7 +291,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         closed_count = len(closed)
     info["sheet_faces"] = int(len(faces) - closed_count)
     log.debug("surface: %s", info)
-    return Surface(faces, vertices, closed_count, info)
+    return Surface(faces, vertices, closed_count, info, lid)
 
 
 def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool = False, normals=None,
@@ -313,10 +339,64 @@ def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None):
     """`surface` of `walls` as a `trimesh.Trimesh` over the used points of `pd` (info in metadata["surface"])."""
     from dmesh.repair import separate_copies
 
-    result = surface(pd, walls, normals, config)
-    mesh = to_trimesh(separate_copies(pd.points[result.vertices], result.faces, result.vertices), result.faces)
+    cfg = config or SurfaceConfig()
+    result = surface(pd, walls, normals, cfg)
+    vertices = separate_copies(pd.points[result.vertices], result.faces, result.vertices)
+    faces = result.faces
+    if result.lid is not None and result.lid.any() and cfg.fairing >= 0:
+        vertices, faces = _fair_lids(vertices, faces, result, cfg.fairing)
+    mesh = to_trimesh(vertices, faces)
     mesh.metadata["surface"] = result.info
     return mesh
+
+
+def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continuity: int):
+    """The closed part's lids refined and faired (`dmesh.native.refine_and_fair`); their info in
+    `result.info` (lid_vertices_added, lids_faired, lids_flat).
+
+    A faired lid can fold where its rim is jagged, or pass through a nearby part of the surface (a leaf over
+    the hole). Folds are smoothed away (`dmesh.repair.untangle`); a lid piece with a face still crossing another
+    stays flat (faces of the triangulation, which cross nothing), and the others are faired again without it.
+    A closed part CGAL cannot take as a 2-manifold keeps all its lids flat, with a warning."""
+    from dmesh import native, repair
+
+    closed, sheets = faces[:result.closed], faces[result.closed:]
+    lid = result.lid[:result.closed]
+    count, piece = repair.edge_pieces(closed[lid])
+    piece_of = np.full(len(closed), -1)
+    piece_of[lid] = piece
+    flat = np.zeros(count, bool)  # pieces left flat
+    v, f, solved = vertices, closed, True
+    while not flat.all():
+        patch = lid & ~flat[np.maximum(piece_of, 0)]
+        try:
+            v, f, refined, solved = native.refine_and_fair(vertices, closed, patch, LID_DENSITY, continuity)
+        except ValueError as err:
+            log.warning("surface: the lids over %d large holes stay flat (%s)", count, err)
+            flat[:] = True
+            break
+        v, hit = repair.untangle(v, np.concatenate([f, sheets]), np.r_[refined, np.zeros(len(sheets), bool)])
+        if not hit.any():
+            break
+        # Refinement keeps each face's index for one of its parts, so a refined piece holding an input face
+        # is that face's lid piece.
+        ids = np.flatnonzero(refined)
+        _, refined_piece = repair.edge_pieces(f[ids])
+        known = ids < len(closed)
+        owner = np.full(refined_piece.max() + 1, -1)
+        owner[refined_piece[known]] = piece_of[ids[known]]
+        bad = owner[np.unique(refined_piece[hit])]
+        if (bad < 0).any():
+            flat[:] = True
+        flat[bad[bad >= 0]] = True
+    if flat.all():
+        v, f, solved = vertices, closed, True
+    if not solved:
+        log.warning("surface: the fairing of the lids over %d large holes was not solved; they stay refined, "
+                    "unfaired", count)
+    result.info.update(lid_vertices_added=int(len(v) - len(vertices)), lids_faired=bool(solved and not flat.all()),
+                       lids_flat=int(flat.sum()))
+    return v, np.concatenate([f, sheets])
 
 
 def towards_cameras(points: np.ndarray, eyes: np.ndarray, limit: int = 200_000) -> tuple[np.ndarray, np.ndarray]:

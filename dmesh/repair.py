@@ -516,6 +516,58 @@ class FaceIndex:
         return hit
 
 
+#: Rounds of `untangle`: each smooths the patch around the faces still crossing, then tests them again.
+UNTANGLE_ROUNDS = 5
+
+
+def untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray,
+             rounds: int = UNTANGLE_ROUNDS) -> tuple[np.ndarray, np.ndarray]:
+    """Smooths away the folds of a patch: where a patch face crosses another face (`FaceIndex`), the patch's
+    free vertices (those on patch faces only) within two rings of it move to the mean of their neighbours (five
+    uniform Laplacian sweeps), and the test runs again, up to `rounds` times.
+
+    Written here: the folds are a few faces of a faired patch (`dmesh.native.refine_and_fair` over a jagged
+    rim), and the smoothing must stay inside the patch, which the libraries' whole-mesh smoothers do not.
+
+    Args:
+        vertices: (V, 3) float; faces: (F, 3) int; patch: (F,) bool.
+    Returns:
+        (V, 3) float64 vertices (only free patch vertices moved) and (P,) bool over `faces[patch]`: the patch
+        faces that still cross a face.
+    """
+    from scipy.sparse import coo_matrix
+
+    v = np.array(vertices, dtype=np.float64, copy=True)
+    f = np.asarray(faces, dtype=np.int64)
+    patch = np.asarray(patch, dtype=bool)
+    tris = f[patch]
+    hit = FaceIndex(v, f).crossing(tris)
+    if not hit.any():
+        return v, hit
+    free = np.zeros(len(v), bool)
+    free[tris.reshape(-1)] = True
+    free[f[~patch].reshape(-1)] = False
+    e = _half_edges(tris)
+    ring = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v), len(v))).tocsr()
+    ring = ((ring + ring.T) > 0).astype(np.float64)
+    degree = np.maximum(np.asarray(ring.sum(1)).reshape(-1), 1.0)
+    for _ in range(rounds):
+        region = np.zeros(len(v), bool)
+        region[tris[hit].reshape(-1)] = True
+        for _ in range(2):
+            region |= (ring @ region.astype(np.float64)) > 0
+        region &= free
+        if not region.any():
+            break
+        rows = ring[region]
+        for _ in range(5):
+            v[region] = (rows @ v) / degree[region, None]
+        hit = FaceIndex(v, f).crossing(tris)
+        if not hit.any():
+            break
+    return v, hit
+
+
 def _spheres(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(F, 3) centroids and (F,) distances to the farthest corner of the triangles `faces`."""
     corners = vertices[faces]
@@ -542,6 +594,24 @@ def faces_on_edges(faces: np.ndarray, other: np.ndarray) -> np.ndarray:
     return hit.reshape(3, -1).any(0)
 
 
+def edge_pieces(faces: np.ndarray) -> tuple[int, np.ndarray]:
+    """The edge-connected pieces of `faces` (faces joined through any shared edge): their number and the
+    (F,) piece of each face."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    if F == 0:
+        return 0, np.zeros(0, np.int64)
+    _, inverse, _ = edge_table(f)
+    order = np.argsort(inverse, kind="stable")
+    same_edge = inverse[order[1:]] == inverse[order[:-1]]  # consecutive half-edges on one edge join faces
+    a, b = order[:-1][same_edge] % F, order[1:][same_edge] % F
+    count, piece = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(F, F)), directed=False)
+    return int(count), piece
+
+
 def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
     """(F,) bool: the faces of a sheet part made only of crumbs, else none.
 
@@ -551,18 +621,11 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
     flagged. When some piece is larger, the shape has real sheets and small pieces beside them are often
     parts of those (a thin leaf that did not join up): none is flagged.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     f = np.asarray(faces, dtype=np.int64)
     F = len(f)
     if F == 0 or max_faces < 1:
         return np.zeros(F, bool)
-    _, inverse, _ = edge_table(f)
-    order = np.argsort(inverse, kind="stable")
-    same_edge = inverse[order[1:]] == inverse[order[:-1]]  # consecutive half-edges on one edge join faces
-    a, b = order[:-1][same_edge] % F, order[1:][same_edge] % F
-    _, comp = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(F, F)), directed=False)
+    _, comp = edge_pieces(f)
     small = np.bincount(comp)[comp] <= max_faces
     return small if small.all() else np.zeros(F, bool)
 

@@ -304,6 +304,33 @@ def repair_pinches(pd, inside: np.ndarray, rounds: int = 20) -> tuple[np.ndarray
     return inside, flipped
 
 
+def large_lids(closed: np.ndarray, lids: np.ndarray, min_rim: int) -> np.ndarray:
+    """(L,) bool: the `lids` faces of pieces whose rim has more than `min_rim` edges.
+
+    `closed` (the walls between inside and outside tets) and `lids` (the other faces between them) make the
+    whole boundary of the inside tets, a closed 2-manifold once pinches are repaired. A piece of lids (joined
+    through edges with two lid faces) covers one hole of the walls, or several that the inside tets join, and
+    its rim is its edges shared with a wall. A small hole is better closed over its own rim (`dmesh.repair.
+    fill_holes`); a hole too large for that is where the input did not sample a closed surface (the part a
+    scanner did not see), and the inside tets' boundary across it keeps the solid's topology there (an
+    unseen band around a torus stays a band, where a fill of each rim would cap it twice).
+    """
+    from dmesh.repair import edge_pieces, edge_table
+
+    L = len(lids)
+    if L == 0:
+        return np.zeros(0, bool)
+    count, piece = edge_pieces(lids)
+    every = np.concatenate([lids, closed]).astype(np.int64)
+    _, inverse, _ = edge_table(every)
+    face = np.arange(len(inverse)) % len(every)  # the face of each half-edge (`edge_table`'s order)
+    walled = np.zeros(int(inverse.max()) + 1, bool)
+    walled[inverse[face >= L]] = True
+    rim = (face < L) & walled[inverse]  # a lid's half-edge on an edge it shares with a wall
+    rim_edges = np.bincount(piece[face[rim]], minlength=count)
+    return rim_edges[piece] > min_rim
+
+
 def oriented_boundary(pd, inside: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """(K, 3) int64: the faces `ids` (each between an inside and an outside tet) wound so that their normal
     (right-hand rule) points from the inside tet to the outside one."""

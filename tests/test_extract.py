@@ -231,3 +231,45 @@ def test_visible_faces_are_the_hull_of_an_opaque_solid():
     few = np.zeros(len(pd.faces), bool)
     few[np.flatnonzero(~pd.is_hull)[:3]] = True    # inner faces alone are visible through the empty hull
     assert (visible_faces(pts, pd, few, cams) <= few).all() and visible_faces(pts, pd, few, cams).any()
+
+
+def test_surface_closes_a_large_hole_with_the_inside_tets_boundary():
+    """A ball's boundary with a cap of walls missing (a part a scanner did not see): too large a hole for a
+    fill over its rim, so the inside tets' own boundary closes it: a closed surface that keeps the walls and
+    about the ball's volume (the walks that leave through the hole call a few tets under it outside, so the
+    lid need not be the missing cap face for face); its mesh, lid refined and faired, is watertight. Without
+    lids the hole stays open."""
+    pd = cloud_diagram(n=3000, seed=4)
+    inside = ball_labels(pd)
+    walls = solid.boundary_mask(pd, inside)
+    truth = solid.oriented_boundary(pd, inside, np.flatnonzero(walls))
+    centre = pd.points[pd.faces.astype(np.int64)].mean(1)
+    cap = walls & (centre[:, 2] > 0.35)
+    holed = walls & ~cap
+    config = SurfaceConfig(max_hole=8)
+    out = surface(pd, holed, config=config)
+    assert out.info["lids"] == 1 and out.info["lid_faces"] > 0 and out.info["holes_left"] == 0
+    assert out.lid.sum() == out.info["lid_faces"] and not out.lid[out.closed:].any()
+    mesh = check_closed(out.faces, pd.points[out.vertices])
+    kept = {cycle(out.vertices[f]) for f in out.faces[~out.lid].tolist()}
+    walls_kept = [cycle(f) in kept for f in truth.tolist() if cycle(f) not in
+                  {cycle(g) for g in solid.oriented_boundary(pd, inside, np.flatnonzero(cap)).tolist()}]
+    assert np.mean(walls_kept) > 0.95
+    ball = trimesh.Trimesh(pd.points, truth, process=False).volume
+    assert mesh.volume == pytest.approx(ball, rel=0.1)
+    bare = surface(pd, holed, config=SurfaceConfig(max_hole=8, lids=False))
+    assert bare.info["holes_left"] >= 1 and repair.boundary_edge_count(bare.faces) > 8
+
+    walls_mesh = trimesh.Trimesh(pd.points, pd.faces[holed], process=False)
+    faired = surface_of_mesh(walls_mesh, pd, config=config)
+    info = faired.metadata["surface"]
+    assert info["lids_faired"] and info["lid_vertices_added"] > 0
+    check_closed(np.asarray(faired.faces), np.asarray(faired.vertices))
+    # `fairing=-1`: the lids stay faces of the triangulation, the surface's faces as they are
+    flat = surface_of_mesh(walls_mesh, pd, config=SurfaceConfig(max_hole=8, fairing=-1))
+    assert "lids_faired" not in flat.metadata["surface"] and len(flat.faces) == len(out.faces)
+    check_closed(np.asarray(flat.faces), np.asarray(flat.vertices))
+    assert len(faired.vertices) == len(flat.vertices) + info["lid_vertices_added"]
+    with pytest.raises(ValueError, match="fairing"):
+        SurfaceConfig(fairing=3)
+

@@ -363,6 +363,32 @@ def test_a_mixed_cloud_gives_no_branch_or_pinch_once_read_back():
     assert res.mesh.is_winding_consistent and res.info["surface"]["split_vertices"] > 0
 
 
+def test_a_scanned_torus_is_closed_over_what_the_scanner_did_not_see():
+    """4 cameras leave stretches of a torus unsampled, holes too large for a fill over their rims: the surface
+    closes them with the inside tets' boundary, refined and faired (`SurfaceConfig.lids`). Against the same
+    final DMesh extracted without lids, the mesh is watertight and much nearer the torus (measured: CD p2s
+    1.02e-3 against 4.13e-3 with 20K metric samples; the limit is half the latter)."""
+    from datasets.scan import simulate_scan
+    from dmesh.extract import SurfaceConfig, extract
+    from eval.metrics import chamfer_l1_p2s
+
+    gt = normalize(generate("torus"))[0]
+    scan = simulate_scan(gt, 20_000, cameras=4, seed=0)
+    cfg = PointCloudConfig.fast()
+    res = reconstruct(scan.points, scan.face_normals, cfg)
+    surface_info = res.info["surface"]
+    assert surface_info["lids"] >= 1 and surface_info["lids_flat"] == 0 and surface_info["lid_vertices_added"] > 0
+    check_closed(np.asarray(res.mesh.faces), np.asarray(res.mesh.vertices))
+    assert _oriented_fraction(res.mesh, gt) >= 0.99
+    bare = extract(res.dmesh, cfg.threshold, None, cfg.extraction, orient=True,
+                   normals=((scan.points - res.center) * res.scale, scan.face_normals),
+                   config=SurfaceConfig(lids=False))
+    bare.vertices = np.asarray(bare.vertices) / res.scale + res.center
+    assert not bare.is_watertight
+    with_lids, without = chamfer_l1_p2s(res.mesh, gt, n=20_000), chamfer_l1_p2s(bare, gt, n=20_000)
+    assert with_lids < 0.5 * without, (with_lids, without)
+
+
 @pytest.mark.parametrize("name", ["disc", "bowl"])
 def test_open_clouds_face_their_normals(name):
     gt, res = _tiny_cloud(name, normals=True)

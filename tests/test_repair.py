@@ -311,3 +311,60 @@ def test_closed_crumbs_are_tiny_closed_pieces_beside_a_larger_one():
     assert not repair.closed_crumbs(ball.faces, 4).any()
     assert not repair.closed_crumbs(tet, 4).any()           # nothing larger beside it: it is the mesh
     assert not repair.closed_crumbs(faces, 0).any()
+
+
+def test_refine_and_fair_restores_a_flattened_cap_of_a_sphere():
+    """CGAL's refine and fair over a cap of a sphere pressed flat: the cap comes back towards the sphere
+    (the reference: the unit sphere itself), the other vertices and faces stay as they were, and the mesh
+    stays a closed 2-manifold of the sphere's genus."""
+    from dmesh import native
+
+    sphere = trimesh.creation.icosphere(3)
+    v, f = np.asarray(sphere.vertices, dtype=np.float64), np.asarray(sphere.faces, dtype=np.int64)
+    patch = v[f].mean(1)[:, 2] > 0.6
+    inner = np.setdiff1d(np.unique(f[patch]), np.unique(f[~patch]))  # vertices with only cap faces around
+    pressed = v.copy()
+    pressed[inner, 2] = 0.6
+    out_v, out_f, out_patch, solved = native.refine_and_fair(pressed, f, patch, density=4.0, continuity=1)
+    assert solved and len(out_v) > len(v) and out_patch.sum() > patch.sum()
+    moved = np.r_[inner, np.arange(len(v), len(out_v))]
+    before = np.abs(np.linalg.norm(pressed[inner], axis=1) - 1.0).mean()
+    after = np.abs(np.linalg.norm(out_v[moved], axis=1) - 1.0).mean()
+    assert after < 0.25 * before, (before, after)
+    held = np.setdiff1d(np.arange(len(v)), inner)
+    assert np.array_equal(out_v[held], pressed[held])
+    assert {cycle(t) for t in f[~patch].tolist()} <= {cycle(t) for t in out_f[~out_patch].tolist()}
+    mesh = check_closed(out_f, out_v)
+    assert mesh.euler_number == 2
+
+
+def test_refine_and_fair_rejects_what_is_not_an_oriented_manifold():
+    from dmesh import native
+
+    sphere = trimesh.creation.icosphere(1)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    flipped = f.copy()
+    flipped[0] = flipped[0, ::-1]  # one face wound against its neighbours
+    with pytest.raises(ValueError, match="2-manifold"):
+        native.refine_and_fair(v, flipped, np.zeros(len(f), bool))
+    with pytest.raises(ValueError, match="patch has"):
+        native.refine_and_fair(v, f, np.zeros(3, bool))
+    with pytest.raises(ValueError, match="continuity"):
+        native.refine_and_fair(v, f, np.zeros(len(f), bool), continuity=3)
+
+
+def test_untangle_smooths_a_fold_out_of_a_patch_and_moves_nothing_else():
+    sphere = trimesh.creation.icosphere(2)
+    v, f = np.asarray(sphere.vertices, dtype=np.float64), np.asarray(sphere.faces, dtype=np.int64)
+    patch = v[f].mean(1)[:, 2] > 0.5
+    free = np.setdiff1d(np.unique(f[patch]), np.unique(f[~patch]))
+    folded = v.copy()
+    folded[free[0]] = [0.05, 0.05, -1.5]  # one cap vertex pulled out through the far side: its faces cross it
+    assert repair.FaceIndex(folded, f).crossing(f[patch]).any()
+    out, hit = repair.untangle(folded, f, patch)
+    assert not hit.any() and not repair.FaceIndex(out, f).crossing(f).any()
+    held = np.setdiff1d(np.arange(len(v)), free)
+    assert np.array_equal(out[held], folded[held])
+    # Nothing to untangle: the vertices come back as they were.
+    same, none = repair.untangle(v, f, patch)
+    assert np.array_equal(same, v) and not none.any()

@@ -58,3 +58,23 @@ def test_pinched_tets_are_separated(shared):
     fixed, flipped = solid.repair_pinches(pd, inside)
     assert flipped > 0
     check_closed(solid.oriented_boundary(pd, fixed, np.flatnonzero(solid.boundary_mask(pd, fixed))), pd.points)
+
+
+def test_large_lids_are_the_pieces_whose_rim_is_longer_than_a_fillable_hole():
+    """Of a closed boundary cut into walls and lids, the lid pieces kept are those with more than `min_rim`
+    rim edges (counted against an independent count: the boundary edges of the walls around each piece)."""
+    pd = cloud_diagram(n=1500, seed=3)
+    inside = ball_labels(pd)
+    faces = solid.oriented_boundary(pd, inside, np.flatnonzero(solid.boundary_mask(pd, inside)))
+    centre = pd.points[faces].mean(1)
+    cap = centre[:, 2] > 0.3  # a large cap
+    one = np.flatnonzero((centre[:, 2] < -0.2) & (np.abs(centre[:, 0]) < 0.15))[:1]  # one face, far from it
+    lid = cap.copy()
+    lid[one] = True
+    walls, lids = faces[~lid], faces[lid]
+    cap_rim = repair.boundary_edge_count(faces[cap])
+    assert cap_rim > 3 and len(one) == 1
+    keep = solid.large_lids(walls, lids, min_rim=3)
+    assert np.array_equal(keep, cap[lid])  # the cap (rim > 3) but not the single face (rim 3)
+    assert not solid.large_lids(walls, lids, min_rim=cap_rim).any()
+    assert solid.large_lids(walls, lids, min_rim=cap_rim - 1).sum() == cap.sum()

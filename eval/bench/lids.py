@@ -1,0 +1,133 @@
+"""Lids over large holes: the point-cloud `fast` preset's surface with and without them, and their settings.
+
+A scanner leaves parts of a closed surface unsampled (the inside of a torus's hole, a concave corner). The
+extraction (`dmesh.extract.surface`) labels the triangulation's tets inside or outside and keeps the mesh
+faces between the two; a hole in them of more than `SurfaceConfig.max_hole` (64) edges used to stay open. Now
+the inside tets' own boundary closes it (`lids`: `dmesh.solid.large_lids`), refined and faired by CGAL
+(`dmesh.native.refine_and_fair`, density control factor `LID_DENSITY`, thin-plate continuity `fairing` 1).
+
+One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper`'s cache: 100K points of each
+shape, `scan`: the 6-camera scan with estimated normals; `realistic`: the same with range noise 0.0025 and 1 %
+outliers; `clean`: the exact samples); its final DMesh is then extracted again with each variant's surface
+settings (the same call as the run's own extraction: `same` says whether the default variant reproduces the
+run's mesh). Figures against the GT (100K samples per side): CD p2s, faces, boundary edges, components,
+self-intersecting faces (pymeshlab); the lids' pieces, faces and the vertices the refinement added; `seconds`:
+the extraction alone.
+
+Regenerate: `python -m eval.bench lids` (10 runs and 70 extractions, about 20 minutes on one core; `--quick`:
+the torus scan only).
+"""
+from __future__ import annotations
+
+import contextlib
+import time
+
+import numpy as np
+
+from eval.bench.common import markdown_table, write_report
+
+WORK = "runs/paper"  # the input cache of the robustness sweep
+SCAN = {"normals": "estimated", "scan": 6}
+REALISTIC = {"noise": 0.0025, "normals": "estimated", "outliers": 0.01, "scan": 6}
+INPUTS = (("torus", "scan", SCAN), ("genus2", "scan", SCAN), ("plant", "scan", SCAN), ("flag_box", "scan", SCAN),
+          ("torus", "realistic", REALISTIC), ("genus2", "realistic", REALISTIC), ("plant", "realistic", REALISTIC),
+          ("flag_box", "realistic", REALISTIC), ("torus", "clean", {}), ("plant", "clean", {}))
+#: (label, SurfaceConfig overrides, LID_DENSITY or None for the default)
+VARIANTS = (("no lids", {"lids": False}, None), ("flat lids", {"fairing": -1}, None),
+            ("faired, density sqrt(2)", {}, 2.0 ** 0.5), ("faired (default)", {}, None),
+            ("faired, density 8", {}, 8.0), ("membrane (fairing 0)", {"fairing": 0}, None),
+            ("curvature (fairing 2)", {"fairing": 2}, None))
+
+
+def _cloud(shape: str, corruption: dict):
+    """(points, normals, GT path, class) of the robustness sweep's input of `shape` with `corruption`."""
+    from eval.runner import prepare_gt, prepare_input
+    from eval.sweep import resolve_shape
+
+    ref, gt_path = prepare_gt(resolve_shape(shape), WORK, 1.0)
+    settings = {"n_points": 100_000, "radius": 1.0, "corruption": dict(corruption)}
+    with np.load(prepare_input(ref, gt_path, "pointcloud", settings, 0, WORK)) as z:
+        return z["points"], z["normals"], gt_path, ref.category
+
+
+@contextlib.contextmanager
+def _lid_density(value):
+    import dmesh.extract as ex
+
+    before = ex.LID_DENSITY
+    ex.LID_DENSITY = before if value is None else value
+    try:
+        yield
+    finally:
+        ex.LID_DENSITY = before
+
+
+def _extractions(points, normals):
+    """The `fast` run and, for each variant, its surface of the run's final DMesh (unit frame, seconds)."""
+    import dataclasses
+
+    import dmesh.recon.pointcloud as pc
+    from dmesh.recon.config import PointCloudConfig
+
+    meshes = {}
+    real_extract = pc.extract
+
+    def extract_all(dm, threshold, pd, mode, orient, normals, config):
+        for label, overrides, density in VARIANTS:
+            with _lid_density(density):
+                t0 = time.perf_counter()
+                mesh = real_extract(dm, threshold, pd, mode, orient=orient, normals=normals,
+                                    config=dataclasses.replace(config, **overrides))
+                meshes[label] = (mesh, time.perf_counter() - t0)
+        return real_extract(dm, threshold, pd, mode, orient=orient, normals=normals, config=config)
+
+    pc.extract = extract_all
+    try:
+        res = pc.reconstruct(points, normals, PointCloudConfig.fast(seed=0))
+    finally:
+        pc.extract = real_extract
+    return res, meshes
+
+
+def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
+    from eval.metrics import chamfer_l1_p2s, mesh_stats
+    from eval.runner import load_gt
+
+    points, normals, gt_path, category = _cloud(shape, corruption)
+    res, meshes = _extractions(points, normals)
+    gt = load_gt(gt_path)
+    rows = []
+    for label, (mesh, seconds) in meshes.items():
+        mesh.vertices = np.asarray(mesh.vertices) / res.scale + res.center  # the run's own frame change
+        stats = mesh_stats(mesh)
+        info = mesh.metadata.get("surface", {})
+        same = ""
+        if label == "faired (default)":
+            same = "yes" if (np.array_equal(mesh.faces, res.mesh.faces)
+                             and np.allclose(mesh.vertices, res.mesh.vertices, rtol=0, atol=1e-12)) else "no"
+        rows.append({"shape": shape, "class": category, "input": kind, "variant": label,
+                     "cd_p2s": chamfer_l1_p2s(mesh, gt, n=100_000), "faces": stats["faces"],
+                     "boundary_edges": stats["boundary_edges"], "components": stats["components"],
+                     "self_intersecting_faces": stats["self_intersecting_faces"], "lids": info.get("lids", 0),
+                     "lid_faces": info.get("lid_faces", 0), "lid_vertices_added": info.get("lid_vertices_added", 0),
+                     "smooth_k": res.info.get("smooth_k"), "same": same, "seconds": seconds})
+        print(f"{shape} {kind} {label}: CD p2s {rows[-1]['cd_p2s'] * 1e3:.3f} x1e-3, {stats['components']} "
+              f"components, {stats['boundary_edges']} boundary edges", flush=True)
+    return rows
+
+
+def main(out: str = "reports", quick: bool = False) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    rows = [r for case in (INPUTS[:1] if quick else INPUTS) for r in _rows(*case)]
+    shown = [{**r, "cd_p2s": r["cd_p2s"] * 1e3} for r in rows]
+    cols = ["shape", "class", "input", "variant", "cd_p2s", "faces", "boundary_edges", "components",
+            "self_intersecting_faces", "lids", "lid_faces", "lid_vertices_added", "smooth_k", "same", "seconds"]
+    intro = __doc__.split("\n\nRegenerate")[0] + "\n\nCD p2s in the table is x1e-3 (the CSV holds raw distances)."
+    write_report(out, "bench_lids", "Lids over large holes", intro,
+                 markdown_table(shown, cols, {"cd_p2s": ".3f", "seconds": ".1f"}), rows)
+
+
+if __name__ == "__main__":
+    main()
