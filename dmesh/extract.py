@@ -352,12 +352,14 @@ def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None):
 
 def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continuity: int):
     """The closed part's lids refined and faired (`dmesh.native.refine_and_fair`); their info in
-    `result.info` (lid_vertices_added, lids_faired, lids_flat).
+    `result.info` (lid_vertices_added, lids_faired, lids_dropped).
 
     A faired lid can fold where its rim is jagged, or pass through a nearby part of the surface (a leaf over
-    the hole). Folds are smoothed away (`dmesh.repair.untangle`); a lid piece with a face still crossing another
-    stays flat (faces of the triangulation, which cross nothing), and the others are faired again without it.
-    A closed part CGAL cannot take as a 2-manifold keeps all its lids flat, with a warning."""
+    the hole). Folds are smoothed away (`dmesh.repair.untangle`). A lid piece with a face still crossing another
+    is dropped, and the others are faired again without it: it closes a hole in a tight spot, next to other
+    parts of the surface, where the inside/outside labelling is least sure (README: such lids kept flat made
+    mixed shapes worse), so its hole stays open as it did before lids. A closed part CGAL cannot take as a
+    2-manifold drops all its lids, with a warning."""
     from dmesh import native, repair
 
     closed, sheets = faces[:result.closed], faces[result.closed:]
@@ -365,15 +367,15 @@ def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continu
     count, piece = repair.edge_pieces(closed[lid])
     piece_of = np.full(len(closed), -1)
     piece_of[lid] = piece
-    flat = np.zeros(count, bool)  # pieces left flat
+    dropped = np.zeros(count, bool)
     v, f, solved = vertices, closed, True
-    while not flat.all():
-        patch = lid & ~flat[np.maximum(piece_of, 0)]
+    while not dropped.all():
+        patch = lid & ~dropped[np.maximum(piece_of, 0)]
         try:
             v, f, refined, solved = native.refine_and_fair(vertices, closed, patch, LID_DENSITY, continuity)
         except ValueError as err:
-            log.warning("surface: the lids over %d large holes stay flat (%s)", count, err)
-            flat[:] = True
+            log.warning("surface: the lids over %d large holes are dropped (%s)", count, err)
+            dropped[:] = True
             break
         v, hit = repair.untangle(v, np.concatenate([f, sheets]), np.r_[refined, np.zeros(len(sheets), bool)])
         if not hit.any():
@@ -387,16 +389,21 @@ def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continu
         owner[refined_piece[known]] = piece_of[ids[known]]
         bad = owner[np.unique(refined_piece[hit])]
         if (bad < 0).any():
-            flat[:] = True
-        flat[bad[bad >= 0]] = True
-    if flat.all():
+            dropped[:] = True
+        dropped[bad[bad >= 0]] = True
+    if dropped.all():
         v, f, solved = vertices, closed, True
     if not solved:
         log.warning("surface: the fairing of the lids over %d large holes was not solved; they stay refined, "
                     "unfaired", count)
-    result.info.update(lid_vertices_added=int(len(v) - len(vertices)), lids_faired=bool(solved and not flat.all()),
-                       lids_flat=int(flat.sum()))
-    return v, np.concatenate([f, sheets])
+    # The dropped pieces' faces were left out of the last patch, so they are still the input's, at their indices.
+    keep = np.ones(len(f), bool)
+    keep[:len(closed)] = ~(lid & dropped[np.maximum(piece_of, 0)])
+    result.info.update(lid_vertices_added=int(len(v) - len(vertices)), lids_faired=bool(solved and not dropped.all()),
+                       lids_dropped=int(dropped.sum()))
+    if dropped.any():
+        result.info["lid_faces"] -= int((lid & dropped[np.maximum(piece_of, 0)]).sum())
+    return v, np.concatenate([f[keep], sheets])
 
 
 def towards_cameras(points: np.ndarray, eyes: np.ndarray, limit: int = 200_000) -> tuple[np.ndarray, np.ndarray]:

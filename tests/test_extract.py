@@ -273,3 +273,34 @@ def test_surface_closes_a_large_hole_with_the_inside_tets_boundary():
     with pytest.raises(ValueError, match="fairing"):
         SurfaceConfig(fairing=3)
 
+
+
+@pytest.mark.parametrize("height,dropped", [(0.7, True), (1.5, False)])
+def test_a_lid_whose_fair_form_crosses_a_sheet_is_dropped(height, dropped):
+    """A pressed sphere cap as the lid and a square sheet above it: faired, the cap rises towards the sphere.
+    Through a sheet at z = 0.7 it would cross it, so the lid is dropped (its hole open again) and the sheet
+    kept; a sheet at z = 1.5 leaves the faired lid in place."""
+    from dmesh.extract import Surface, _fair_lids
+
+    sphere = trimesh.creation.icosphere(3)
+    v, f = np.asarray(sphere.vertices, dtype=np.float64), np.asarray(sphere.faces, dtype=np.int64)
+    lid = v[f].mean(1)[:, 2] > 0.6
+    inner = np.setdiff1d(np.unique(f[lid]), np.unique(f[~lid]))
+    v[inner, 2] = 0.6
+    square = np.array([[-0.5, -0.5, height], [0.5, -0.5, height], [0.5, 0.5, height], [-0.5, 0.5, height]])
+    sheet = len(v) + np.array([[0, 1, 2], [0, 2, 3]])
+    vertices = np.concatenate([v, square])
+    faces = np.concatenate([f, sheet])
+    result = Surface(faces, np.arange(len(vertices)), len(f), {"lids": 1, "lid_faces": int(lid.sum())},
+                     np.r_[lid, False, False])
+    out_v, out_f = _fair_lids(vertices, faces, result, 1)
+    assert result.info["lids_dropped"] == int(dropped)
+    assert {cycle(t) for t in sheet.tolist()} <= {cycle(t) for t in out_f.tolist()}  # the sheet stays
+    closed = out_f[~np.isin(out_f, sheet).all(1)]
+    if dropped:
+        assert np.array_equal(out_v, vertices) and len(closed) == (~lid).sum()
+        assert result.info["lid_faces"] == 0 and repair.boundary_edge_count(closed) > 0
+    else:
+        assert len(out_v) > len(vertices) and result.info["lid_vertices_added"] > 0
+        check_closed(closed, out_v)
+        assert not repair.FaceIndex(out_v, out_f).crossing(out_f).any()

@@ -377,7 +377,7 @@ def test_a_scanned_torus_is_closed_over_what_the_scanner_did_not_see():
     cfg = PointCloudConfig.fast()
     res = reconstruct(scan.points, scan.face_normals, cfg)
     surface_info = res.info["surface"]
-    assert surface_info["lids"] >= 1 and surface_info["lids_flat"] == 0 and surface_info["lid_vertices_added"] > 0
+    assert surface_info["lids"] >= 1 and surface_info["lids_dropped"] == 0 and surface_info["lid_vertices_added"] > 0
     check_closed(np.asarray(res.mesh.faces), np.asarray(res.mesh.vertices))
     assert _oriented_fraction(res.mesh, gt) >= 0.99
     bare = extract(res.dmesh, cfg.threshold, None, cfg.extraction, orient=True,
