@@ -153,6 +153,10 @@ class SurfaceConfig:
     max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped,
                                # and so is a closed piece this small beside a larger one
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
+    stacked: float = 1.0       # ... and a sheet piece of a few faces lying within this many edge lengths of a
+                               # larger piece (dmesh.repair.stacked_pieces); 0 keeps them
+    max_sheet_hole: int = 24   # holes inside a sheet with at most this many edges are filled, never its rim
+                               # (dmesh.repair.sheet_holes); 0 leaves them open
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     revote: bool = True        # vote again with the open sheets set aside (dmesh.solid.open_sheet_walls)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
@@ -177,7 +181,9 @@ class SurfaceConfig:
             raise ValueError(f"SurfaceConfig.min_thickness must be >= 0, got {self.min_thickness}")
         if int(self.neighbours) < 1:
             raise ValueError(f"SurfaceConfig.neighbours must be >= 1, got {self.neighbours}")
-        for name in ("max_hole", "max_crumb", "repair_rounds"):
+        if not self.stacked >= 0.0:
+            raise ValueError(f"SurfaceConfig.stacked must be >= 0, got {self.stacked}")
+        for name in ("max_hole", "max_crumb", "max_sheet_hole", "repair_rounds"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"SurfaceConfig.{name} must be >= 0, got {getattr(self, name)}")
         if int(self.fairing) not in (-1, 0, 1, 2):
@@ -197,6 +203,7 @@ class Surface:
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
             tets_flipped, closed_faces, lids, lid_faces, holes_filled, hole_faces, holes_left (holes_crossing
             of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
+            stacked_dropped, sheet_holes_filled, sheet_hole_faces, seams_cut,
             split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
         lid: (K,) bool, the faces of the lids over large holes of the closed part (`SurfaceConfig.lids`).
     """
@@ -267,17 +274,36 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
             crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]
+        stacked = repair.stacked_pieces(points, sheet, closed, cfg.stacked)
+        # A piece hanging on an edge of a sheet keeps that edge apart (`split_fans` below); without the piece,
+        # the two faces left would join there, and where the sheet folds over itself they would join in a
+        # twist (a seam: no winding agrees across it). The winding is found with those edges still apart, and
+        # those that come out as seams stay apart, as they were.
+        hung = repair.nonmanifold_edges(sheet)
+        sheet = sheet[~stacked]
         info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing,
-                    fins_dropped=int(fins.sum()), crumbs_dropped=int(crumbs.sum()))
-    sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
-                                 turn_faces=cfg.turn_faces)
+                    fins_dropped=int(fins.sum()), crumbs_dropped=int(crumbs.sum()), stacked_dropped=int(stacked.sum()))
+        apart, source = repair.split_fans(sheet, len(points), hung)
+        sheet = source[repair.orient_sheets(points[source], apart, normals, k=cfg.neighbours, workers=cfg.workers,
+                                            turn_faces=cfg.turn_faces)]
+    else:
+        sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
+                                     turn_faces=cfg.turn_faces)
+    if cfg.clean:  # after the winding: a hole's loop runs against its faces
+        loops = repair.sheet_holes(points, sheet, cfg.max_sheet_hole, avoid=closed)
+        fill, filled = (repair.fill_holes(points, sheet, cfg.max_sheet_hole, others=closed, loops=loops)[:2] if loops
+                        else (np.zeros((0, 3), np.int64), 0))
+        sheet = np.concatenate([sheet, fill])
+        seams = repair.seam_edges(sheet)
+        cut = seams[repair.edges_in(seams, hung)]
+        info.update(sheet_holes_filled=filled, sheet_hole_faces=int(len(fill)), seams_cut=int(len(cut)))
     faces = np.concatenate([closed, sheet])
     lid = np.r_[lid, np.zeros(len(sheet), bool)]
     vertices = np.arange(len(points))
     if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices, which
         # `_surface_mesh` moves apart: copies left on one point would make the branch or pinch again in any
         # file of the mesh read back with its vertices merged by position (STL, trimesh's default load).
-        faces, vertices = repair.split_fans(faces, len(points))
+        faces, vertices = repair.split_fans(faces, len(points), cut)
         keep = repair.drop_crowding(points[vertices], faces)
         folds = int((~keep).sum())
         kept = np.flatnonzero(keep)

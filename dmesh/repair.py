@@ -39,6 +39,35 @@ def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.stack([keys // n, keys % n], 1), inverse.reshape(-1), counts
 
 
+def edges_in(edges: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """(E,) bool: which of `edges` ((E, 2) vertex pairs, either order) are in `among` ((K, 2), either order)."""
+    a, b = np.sort(np.asarray(edges, np.int64).reshape(-1, 2), 1), np.sort(np.asarray(among, np.int64).reshape(-1, 2), 1)
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros(len(a), bool)
+    n = int(max(a.max(), b.max())) + 1
+    return np.isin(a[:, 0] * n + a[:, 1], b[:, 0] * n + b[:, 1])
+
+
+def seam_edges(faces: np.ndarray) -> np.ndarray:
+    """(K, 2) int64 edges (sorted pairs) shared by exactly two faces that traverse it in the same direction:
+    where the winding of `faces` is not consistent."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros((0, 2), np.int64)
+    pairs, same = _manifold_pairs(f)
+    return np.sort(_half_edges(f)[pairs[same, 0]], axis=1)
+
+
+def _manifold_pairs(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 2) the two half-edges (`_half_edges` rows) of each edge with exactly two faces, and (M,) bool
+    whether they run the same way (a seam)."""
+    he = _half_edges(f)
+    _, inverse, counts = edge_table(f)
+    order = np.argsort(inverse, kind="stable")
+    pairs = order[(counts[inverse] == 2)[order]].reshape(-1, 2)
+    return pairs, (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)
+
+
 def nonmanifold_edges(faces: np.ndarray) -> np.ndarray:
     """(K, 2) int64 edges shared by more than two faces."""
     edges, _, counts = edge_table(faces)
@@ -50,12 +79,12 @@ def boundary_edge_count(faces: np.ndarray) -> int:
     return int((edge_table(faces)[2] == 1).sum())
 
 
-def corner_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def corner_fans(faces: np.ndarray, cut: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fans of corners: (3F,) vertex of each corner (corner j * F + i is vertex j of face i) and (3F,) fan id.
 
     Two corners at the same vertex are in one fan when their faces are joined, around that vertex, through
-    edges with exactly two faces. A manifold vertex has one fan; a pinched vertex or the end of an edge
-    with more than two faces has several.
+    edges with exactly two faces, other than the edges `cut` ((K, 2) vertex pairs). A manifold vertex has
+    one fan; a pinched vertex or the end of an edge with more than two faces (or of a cut one) has several.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -65,10 +94,12 @@ def corner_fans(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     corner_vertex = f.T.reshape(-1)  # half-edge c (`_half_edges` order) starts at corner c
     start = np.arange(3 * F)
     end = (start + F) % (3 * F)  # the half-edge's end corner: vertex j + 1 of the same face
-    _, inverse, counts = edge_table(f)
-    manifold = counts[inverse] == 2
+    edges, inverse, counts = edge_table(f)
+    joins = counts == 2
+    if cut is not None and len(cut):
+        joins &= ~edges_in(edges, cut)
     order = np.argsort(inverse, kind="stable")
-    pairs = order[manifold[order]].reshape(-1, 2)  # the two half-edges of each manifold edge
+    pairs = order[joins[inverse][order]].reshape(-1, 2)  # the two half-edges of each joining edge
     rows, cols = [], []
     for x in (start, end):
         for y in (start, end):
@@ -94,12 +125,15 @@ def nonmanifold_vertices(faces: np.ndarray) -> np.ndarray:
     return vertices[fans > 1]
 
 
-def split_fans(faces: np.ndarray, n_vertices: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def split_fans(faces: np.ndarray, n_vertices: int | None = None,
+               cut: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each vertex split into one copy per fan (`corner_fans`), which makes every vertex manifold and every
-    edge with more than two faces several edges, without moving or dropping anything.
+    edge with more than two faces (and every edge in `cut`) several edges, without moving or dropping
+    anything.
 
     Args:
-        faces: (F, 3) ints; n_vertices: the vertex count (None: the largest index + 1).
+        faces: (F, 3) ints; n_vertices: the vertex count (None: the largest index + 1); cut: (K, 2) vertex
+            pairs of edges to part even where they have two faces.
     Returns:
         (F, 3) int64 faces over the new vertices and (V',) int64 the original vertex of each new vertex;
         a vertex's first fan (by lowest corner) keeps its id, the others get ids from `n_vertices` on.
@@ -108,7 +142,7 @@ def split_fans(faces: np.ndarray, n_vertices: int | None = None) -> tuple[np.nda
     n = int(f.max()) + 1 if n_vertices is None else int(n_vertices)
     if len(f) == 0:
         return f.copy(), np.arange(n)
-    corner_vertex, fan = corner_fans(f)
+    corner_vertex, fan = corner_fans(f, cut)
     pair, first, inverse = np.unique(corner_vertex * (3 * len(f)) + fan, return_index=True, return_inverse=True)
     vertex = pair // (3 * len(f))
     # the pair holding each vertex's lowest corner keeps the vertex id
@@ -220,11 +254,7 @@ def seam_components(faces: np.ndarray, comp: np.ndarray, n: int) -> np.ndarray:
     out = np.zeros(n, bool)
     if len(f) == 0:
         return out
-    he = _half_edges(f)
-    _, inverse, counts = edge_table(f)
-    order = np.argsort(inverse, kind="stable")
-    pairs = order[(counts[inverse] == 2)[order]].reshape(-1, 2)
-    same = (he[pairs[:, 0]] == he[pairs[:, 1]]).all(1)
+    pairs, same = _manifold_pairs(f)
     out[np.asarray(comp)[pairs[same, 0] % len(f)]] = True
     return out
 
@@ -386,9 +416,11 @@ FILL_RETRIES = 3
 
 
 def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrossed: bool = True,
-               others: np.ndarray | None = None) -> tuple[np.ndarray, int, int, int]:
+               others: np.ndarray | None = None, loops: list[list[int]] | None = None
+               ) -> tuple[np.ndarray, int, int, int]:
     """Triangles closing the holes of consistently wound `faces` that have at most `max_edges` edges
-    (`fill_loop`, no new vertex, no edge used by more than two faces).
+    (`fill_loop`, no new vertex, no edge used by more than two faces; no fill edge is an edge of `others`
+    either), or the given `loops` (from `hole_loops`, e.g. `sheet_holes`) instead.
 
     With `uncrossed`, every hole is filled first, then the fills with a triangle crossing `faces` or
     another hole's triangles or `others` (more faces of the mesh, e.g. its sheets; (., 3) int)
@@ -403,12 +435,15 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
     f = np.asarray(faces, dtype=np.int64)
     v = np.asarray(vertices, dtype=np.float64)
     others = np.zeros((0, 3), np.int64) if others is None else np.asarray(others, dtype=np.int64)
-    every = hole_loops(f)
-    loops = [loop for loop in every if len(loop) <= max_edges]
+    if loops is None:
+        every = hole_loops(f)
+        loops = [loop for loop in every if len(loop) <= max_edges]
+    else:
+        every = loops
     fills: dict[int, np.ndarray] = {}  # hole -> its accepted triangles
     banned: dict[int, set] = {}  # hole -> triangles of its earlier fills that crossed
     todo, unfillable = list(range(len(loops))), 0
-    taken = set(map(tuple, edge_table(f)[0].tolist()))  # edges of the faces and of the fills kept so far
+    taken = set(map(tuple, edge_table(np.concatenate([f, others]))[0].tolist()))  # and of the fills kept so far
     surface = FaceIndex(v, np.concatenate([f, others])) if uncrossed else None
     for attempt in range(1 + (FILL_RETRIES if uncrossed else 0)):
         kept = [fills[i] for i in sorted(fills)]
@@ -437,6 +472,56 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
     fill = np.concatenate([fills[i] for i in sorted(fills)]) if fills else np.zeros((0, 3), np.int64)
     crossing = len(loops) - unfillable - len(fills)
     return fill, len(fills), len(every) - len(fills), crossing
+
+
+def sheet_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, max_share: float = 0.25,
+                avoid: np.ndarray | None = None) -> list[list[int]]:
+    """The hole loops (`hole_loops`) inside the sheets `faces` (consistently wound per piece) that a fill may
+    close: at most `max_edges` edges and no longer than `max_edges` of its piece's mean edge lengths (a loop
+    of long edges runs along triangles spanning a fold, and its fill would too), not the longest loop of
+    its piece (its rim: a sheet is open), an area (of the loop's vector area) of at most `max_share` of the
+    piece's (a loop that large is part of the rim cut off at a pinch, and its fill would lay a second layer
+    on the sheet), and no edge of `avoid` ((., 3) int faces, e.g. the closed part, whose edges already have
+    their two faces)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0 or max_edges < 3:
+        return []
+    v = np.asarray(vertices, dtype=np.float64)
+    loops = hole_loops(f)
+    if not loops:
+        return []
+    n, piece = edge_pieces(f)
+    he = _half_edges(f)
+    _, inverse, counts = edge_table(f)
+    rim_half = np.flatnonzero(counts[inverse] == 1)
+    face_of = dict(zip(map(tuple, he[rim_half].tolist()), (rim_half % len(f)).tolist()))
+    area = np.bincount(piece, 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
+                                                   axis=1), n)
+    spacing = (np.bincount(np.tile(piece, 3), np.linalg.norm(v[he[:, 1]] - v[he[:, 0]], axis=1), n)
+               / np.maximum(3 * np.bincount(piece, minlength=n), 1))  # mean edge length (inner ones twice)
+    blocked = set()
+    if avoid is not None and len(avoid):
+        blocked = set(map(tuple, edge_table(np.asarray(avoid, dtype=np.int64))[0].tolist()))
+    owner, length, share = [], [], []
+    for loop in loops:
+        p = v[loop]
+        q = np.roll(p, -1, axis=0)
+        owner.append(piece[face_of[(loop[1], loop[0])]])  # the loop runs against its faces' half-edges
+        length.append(float(np.linalg.norm(q - p, axis=1).sum()))
+        share.append(0.5 * float(np.linalg.norm(np.cross(p, q).sum(0))) / max(area[owner[-1]], FLOAT64_FLOOR))
+    owner, length = np.asarray(owner), np.asarray(length)
+    rim = np.full(n, -1)
+    order = np.lexsort((length, owner))
+    last = np.r_[owner[order][1:] != owner[order][:-1], True]  # the longest loop of each piece
+    rim[owner[order][last]] = order[last]
+    keep = []
+    for i, loop in enumerate(loops):
+        edges = zip(loop, loop[1:] + loop[:1])
+        if (len(loop) <= max_edges and length[i] <= max_edges * spacing[owner[i]] and rim[owner[i]] != i
+                and share[i] <= max_share
+                and not any((min(a, b), max(a, b)) in blocked for a, b in edges)):
+            keep.append(loop)
+    return keep
 
 
 # ------------------------------------------------------------------------------------------------ crossings
@@ -594,9 +679,10 @@ def faces_on_edges(faces: np.ndarray, other: np.ndarray) -> np.ndarray:
     return hit.reshape(3, -1).any(0)
 
 
-def edge_pieces(faces: np.ndarray) -> tuple[int, np.ndarray]:
-    """The edge-connected pieces of `faces` (faces joined through any shared edge): their number and the
-    (F,) piece of each face."""
+def edge_pieces(faces: np.ndarray, manifold: bool = False) -> tuple[int, np.ndarray]:
+    """The edge-connected pieces of `faces` (faces joined through any shared edge; with `manifold`, only
+    through edges that exactly two faces share, as the pieces fall apart once `split_fans` has cut the
+    others): their number and the (F,) piece of each face."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -604,9 +690,11 @@ def edge_pieces(faces: np.ndarray) -> tuple[int, np.ndarray]:
     F = len(f)
     if F == 0:
         return 0, np.zeros(0, np.int64)
-    _, inverse, _ = edge_table(f)
+    _, inverse, counts = edge_table(f)
     order = np.argsort(inverse, kind="stable")
     same_edge = inverse[order[1:]] == inverse[order[:-1]]  # consecutive half-edges on one edge join faces
+    if manifold:
+        same_edge &= counts[inverse[order[1:]]] == 2
     a, b = order[:-1][same_edge] % F, order[1:][same_edge] % F
     count, piece = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(F, F)), directed=False)
     return int(count), piece
@@ -628,6 +716,64 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
     _, comp = edge_pieces(f)
     small = np.bincount(comp)[comp] <= max_faces
     return small if small.all() else np.zeros(F, bool)
+
+
+#: Largest piece (faces) that `stacked_pieces` tests: stray copies are a few faces each; a larger piece near
+#: another is more likely a real part of the shape lying close to it.
+STACKED_MAX_FACES = 64
+#: Nearest faces (by centroid) `stacked_pieces` measures each face against.
+STACKED_NEIGHBOURS = 16
+
+
+def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray | None = None,
+                   tol: float = 1.0, max_faces: int = STACKED_MAX_FACES) -> np.ndarray:
+    """(F,) bool: the faces of small pieces of `faces` that lie on a larger surface: stray copies of it.
+
+    Pieces are joined through edges of two faces (`edge_pieces` with `manifold`: a piece hanging on a
+    non-manifold edge is cut off there by `split_fans`). A piece of at most `max_faces` faces is flagged when the
+    centroid of each of its faces lies within `tol` local edge lengths (the median longest edge of the
+    face's `STACKED_NEIGHBOURS` nearest faces) of a face of a strictly larger piece or of `others` (more
+    faces of the mesh, e.g. its closed part; (., 3) int). Noise in the input, or a surface sampled on both
+    sides of a thin gap, leaves such pieces: a triangle or two floating in the band of the surface beside
+    it. They cover nothing the larger surface does not, yet each adds a component and three boundary
+    edges, and in a render they flicker through the surface. A piece that covers a part of the shape
+    nothing else covers (a leaf that did not join up) lies farther than that from any larger piece and
+    stays. `tol` <= 0 flags nothing.
+    """
+    from scipy.spatial import cKDTree
+    from trimesh.triangles import closest_point
+
+    f = np.asarray(faces, dtype=np.int64)
+    F = len(f)
+    flagged = np.zeros(F, bool)
+    if F == 0 or tol <= 0:
+        return flagged
+    v = np.asarray(vertices, dtype=np.float64)
+    o = np.zeros((0, 3), np.int64) if others is None else np.asarray(others, dtype=np.int64)
+    n, piece = edge_pieces(f, manifold=True)
+    size = np.bincount(piece, minlength=n)
+    query = np.flatnonzero(size[piece] <= max_faces)
+    if len(query) == 0 or size.min() == size.max() and len(o) == 0:
+        return flagged
+    every = np.concatenate([f, o])
+    owner_size = np.r_[size[piece], np.full(len(o), np.inf)]
+    corners = v[every]
+    centres = corners.mean(1)
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(1)
+    k = min(STACKED_NEIGHBOURS, len(every))
+    _, near = cKDTree(centres).query(centres[query], k)
+    near = np.asarray(near, np.int64).reshape(len(query), k)
+    scale = np.median(longest[near], axis=1)
+    qi, fi = np.repeat(query, k), near.ravel()
+    larger = owner_size[fi] > size[piece[qi]]  # pieces of one size never absorb each other
+    gap = np.full(len(qi), np.inf)
+    gap[larger] = np.linalg.norm(closest_point(corners[fi[larger]], centres[qi[larger]]) - centres[qi[larger]],
+                                 axis=1)
+    ratio = gap.reshape(len(query), k).min(1) / np.maximum(scale, FLOAT64_FLOOR)
+    worst = np.zeros(n)
+    np.maximum.at(worst, piece[query], ratio)
+    on_surface = (worst <= tol) & (size <= max_faces)
+    return on_surface[piece]
 
 
 def closed_crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:

@@ -278,9 +278,10 @@ def test_surface_drops_stray_sheet_triangles_so_a_closed_part_stays_watertight()
     inner_faces = np.flatnonzero((pd.faces >= len(pts)).all(1))  # faces among the interior points only
     walls[inner_faces[:1]] = True  # one stray triangle inside the ball
     # max_crumb: pieces this small go when all are; max_debris: a sheet part this small a fraction of the faces
-    # goes whatever its pieces' sizes (one stray face among about 800 is 1/800 of them).
+    # goes whatever its pieces' sizes (one stray face among about 800 is 1/800 of them). The stray triangle can
+    # lie within an edge length of the sphere; the test of pieces lying on the surface (`stacked`) is off here.
     for max_crumb, max_debris, expect_stray in ((4, 0.0, False), (0, 0.0, True), (0, 1e-3, True), (0, 0.01, False)):
-        out = surface(pd, walls, config=SurfaceConfig(max_crumb=max_crumb, max_debris=max_debris))
+        out = surface(pd, walls, config=SurfaceConfig(max_crumb=max_crumb, max_debris=max_debris, stacked=0.0))
         mesh = trimesh.Trimesh(pd.points[out.vertices], out.faces, process=False)
         assert ((len(out.faces) == int(hull.sum()) + 1) == expect_stray
                 and out.info["crumbs_dropped"] == (not expect_stray))
@@ -368,3 +369,62 @@ def test_untangle_smooths_a_fold_out_of_a_patch_and_moves_nothing_else():
     # Nothing to untangle: the vertices come back as they were.
     same, none = repair.untangle(v, f, patch)
     assert np.array_equal(same, v) and not none.any()
+
+
+def _grid(n: int, z: float = 0.0, offset=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex grid of unit spacing in the plane z, two triangles per square, wound upward."""
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    v = np.stack([x.ravel() + offset[0], y.ravel() + offset[1], np.full(n * n, z)], 1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a, b, c, d = (i * n + j).ravel(), ((i + 1) * n + j).ravel(), ((i + 1) * n + j + 1).ravel(), (i * n + j + 1).ravel()
+    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def test_stacked_pieces_are_small_pieces_lying_on_a_larger_surface():
+    v, f = _grid(12)
+    extra = np.array([[3.2, 3.3, 0.1], [4.1, 3.4, -0.1], [3.6, 4.2, 0.05],    # a triangle in the grid's band
+                      [3.2, 3.3, 3.0], [4.1, 3.4, 3.0], [3.6, 4.2, 3.0],      # one three edges above it
+                      [6.0, 6.0, 0.2]])                                        # apex of a fin on a grid edge
+    v = np.concatenate([v, extra])
+    n = 144
+    near, far = [n, n + 1, n + 2], [n + 3, n + 4, n + 5]
+    fin = [5 * 12 + 5, 6 * 12 + 6, n + 6]              # on the diagonal edge of square (5, 5): non-manifold there
+    sv, sf = _grid(3, offset=(30.0, 0.0))                # a separate 8-face sheet far away
+    v = np.concatenate([v, sv])
+    faces = np.concatenate([f, [near, far, fin], sf + len(v) - len(sv)])
+    flagged = repair.stacked_pieces(v, faces)
+    expect = np.zeros(len(faces), bool)
+    expect[len(f)] = expect[len(f) + 2] = True         # the one in the band and the fin (cut off at its edge)
+    assert flagged.tolist() == expect.tolist()
+    assert not repair.stacked_pieces(v, faces, tol=0).any()
+    # A triangle just above another surface given as `others` (e.g. the closed part) lies on it too.
+    alone = np.array([near, far])
+    assert repair.stacked_pieces(v, alone, others=f).tolist() == [True, False]
+    # Pieces of one size never absorb each other: two triangles lying on one another both stay.
+    w = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0.01], [1, 0, 0.01], [0, 1, 0.01]], float)
+    assert not repair.stacked_pieces(w, np.array([[0, 1, 2], [3, 4, 5]])).any()
+
+
+def test_sheet_holes_are_small_inner_holes_not_rims_nor_real_holes():
+    v, f = _grid(12)
+    centre = 5 * 12 + 5                                  # the six faces around one vertex: a 6-edge hole
+    small = (f == centre).any(1)
+    big = np.isin(f, [i * 12 + j for i in range(2, 4) for j in range(7, 10)]).any(1)  # a 2 x 3 vertex block
+    sheet = f[~small & ~big]
+    loops = repair.hole_loops(sheet)
+    assert sorted(len(loop) for loop in loops) == [6, 12, 44]  # the small hole, the large one, the rim
+    picked = repair.sheet_holes(v, sheet, 8)
+    assert [len(loop) for loop in picked] == [6]             # the large hole has more than 8 edges
+    assert sorted(len(loop) for loop in repair.sheet_holes(v, sheet, 48)) == [6, 12]  # never the rim
+    fill, filled, _, _ = repair.fill_holes(v, sheet, 8, loops=picked)
+    assert filled == 1 and len(fill) == 4
+    assert sorted(len(loop) for loop in repair.hole_loops(np.concatenate([sheet, fill]))) == [12, 44]
+    # A hole as large as its sheet is the shape's own (a washer): its loop is left open.
+    around = np.setdiff1d(f[small], [centre])            # the hole's six corners
+    ring = sheet[np.isin(sheet, around).any(1)]          # the faces at them: a band one face wide
+    assert sorted(len(loop) for loop in repair.hole_loops(ring)) == [6, 12]
+    assert repair.sheet_holes(v, ring, 24) == []
+    assert [len(loop) for loop in repair.sheet_holes(v, ring, 24, max_share=1.0)] == [6]
+    # A hole whose rim has an edge of `avoid` (the closed part) is not the sheet's to fill.
+    ring_edge = [picked[0][0], picked[0][1]]
+    assert repair.sheet_holes(v, sheet, 8, avoid=np.array([[*ring_edge, 143]])) == []

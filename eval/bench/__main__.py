@@ -9,7 +9,7 @@ import sys
 
 import eval.bench as pkg
 
-SKIP = {"common", "__main__"}
+SKIP = {"common", "surface_variants", "__main__"}
 
 
 def available() -> list[str]:

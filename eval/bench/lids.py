@@ -21,15 +21,10 @@ the torus scan only).
 from __future__ import annotations
 
 import contextlib
-import time
-
-import numpy as np
 
 from eval.bench.common import markdown_table, write_report
+from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run
 
-WORK = "runs/paper"  # the input cache of the robustness sweep
-SCAN = {"normals": "estimated", "scan": 6}
-REALISTIC = {"noise": 0.0025, "normals": "estimated", "outliers": 0.01, "scan": 6}
 INPUTS = (("torus", "scan", SCAN), ("genus2", "scan", SCAN), ("plant", "scan", SCAN), ("flag_box", "scan", SCAN),
           ("torus", "realistic", REALISTIC), ("genus2", "realistic", REALISTIC), ("plant", "realistic", REALISTIC),
           ("flag_box", "realistic", REALISTIC), ("torus", "clean", {}), ("plant", "clean", {}),
@@ -41,17 +36,6 @@ VARIANTS = (("no lids", {"lids": False}, None), ("flat lids", {"fairing": -1}, N
             ("faired, density sqrt(2)", {}, 2.0 ** 0.5), ("faired (default)", {}, None),
             ("faired, density 8", {}, 8.0), ("membrane (fairing 0)", {"fairing": 0}, None),
             ("curvature (fairing 2)", {"fairing": 2}, None))
-
-
-def _cloud(shape: str, corruption: dict):
-    """(points, normals, GT path, class) of the robustness sweep's input of `shape` with `corruption`."""
-    from eval.runner import prepare_gt, prepare_input
-    from eval.sweep import resolve_shape
-
-    ref, gt_path = prepare_gt(resolve_shape(shape), WORK, 1.0)
-    settings = {"n_points": 100_000, "radius": 1.0, "corruption": dict(corruption)}
-    with np.load(prepare_input(ref, gt_path, "pointcloud", settings, 0, WORK)) as z:
-        return z["points"], z["normals"], gt_path, ref.category
 
 
 @contextlib.contextmanager
@@ -66,49 +50,18 @@ def _lid_density(value):
         ex.LID_DENSITY = before
 
 
-def _extractions(points, normals):
-    """The `fast` run and, for each variant, its surface of the run's final DMesh (unit frame, seconds)."""
-    import dataclasses
-
-    import dmesh.recon.pointcloud as pc
-    from dmesh.recon.config import PointCloudConfig
-
-    meshes = {}
-    real_extract = pc.extract
-
-    def extract_all(dm, threshold, pd, mode, orient, normals, config):
-        for label, overrides, density in VARIANTS:
-            with _lid_density(density):
-                t0 = time.perf_counter()
-                mesh = real_extract(dm, threshold, pd, mode, orient=orient, normals=normals,
-                                    config=dataclasses.replace(config, **overrides))
-                meshes[label] = (mesh, time.perf_counter() - t0)
-        return real_extract(dm, threshold, pd, mode, orient=orient, normals=normals, config=config)
-
-    pc.extract = extract_all
-    try:
-        res = pc.reconstruct(points, normals, PointCloudConfig.fast(seed=0))
-    finally:
-        pc.extract = real_extract
-    return res, meshes
-
-
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.metrics import chamfer_l1_p2s, mesh_stats
     from eval.runner import load_gt
 
-    points, normals, gt_path, category = _cloud(shape, corruption)
-    res, meshes = _extractions(points, normals)
+    points, normals, gt_path, category = cloud(shape, corruption)
+    res, meshes = extractions(points, normals, VARIANTS, _lid_density)
     gt = load_gt(gt_path)
     rows = []
     for label, (mesh, seconds) in meshes.items():
-        mesh.vertices = np.asarray(mesh.vertices) / res.scale + res.center  # the run's own frame change
         stats = mesh_stats(mesh)
         info = mesh.metadata.get("surface", {})
-        same = ""
-        if label == "faired (default)":
-            same = "yes" if (np.array_equal(mesh.faces, res.mesh.faces)
-                             and np.allclose(mesh.vertices, res.mesh.vertices, rtol=0, atol=1e-12)) else "no"
+        same = same_as_run(mesh, res) if label == "faired (default)" else ""
         rows.append({"shape": shape, "class": category, "input": kind, "variant": label,
                      "cd_p2s": chamfer_l1_p2s(mesh, gt, n=100_000), "faces": stats["faces"],
                      "boundary_edges": stats["boundary_edges"], "components": stats["components"],
