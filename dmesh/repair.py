@@ -723,6 +723,10 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
 STACKED_MAX_FACES = 64
 #: Nearest faces (by centroid) `stacked_pieces` measures each face against.
 STACKED_NEIGHBOURS = 16
+#: A face lies on another only over it: its centroid's closest point on the other face is at most this many
+#: local edge lengths aside from the foot of the perpendicular (a piece in a hole of a larger one lies beside
+#: its faces, and covers what they do not).
+STACKED_OVER = 0.1
 
 
 def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray | None = None,
@@ -731,14 +735,15 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
 
     Pieces are joined through edges of two faces (`edge_pieces` with `manifold`: a piece hanging on a
     non-manifold edge is cut off there by `split_fans`). A piece of at most `max_faces` faces is flagged when the
-    centroid of each of its faces lies within `tol` local edge lengths (the median longest edge of the
-    face's `STACKED_NEIGHBOURS` nearest faces) of a face of a strictly larger piece or of `others` (more
-    faces of the mesh, e.g. its closed part; (., 3) int). Noise in the input, or a surface sampled on both
-    sides of a thin gap, leaves such pieces: a triangle or two floating in the band of the surface beside
-    it. They cover nothing the larger surface does not, yet each adds a component and three boundary
-    edges, and in a render they flicker through the surface. A piece that covers a part of the shape
-    nothing else covers (a leaf that did not join up) lies farther than that from any larger piece and
-    stays. `tol` <= 0 flags nothing.
+    centroid of each of its faces lies over a face of a strictly larger piece or of `others` (more faces of
+    the mesh, e.g. its closed part; (., 3) int), within `tol` local edge lengths of its plane (the length:
+    the median longest edge of the face's `STACKED_NEIGHBOURS` nearest faces; "over": its closest point on
+    that face at most `STACKED_OVER` of them aside from the foot of the perpendicular). Noise in the input
+    leaves such pieces: a triangle or two floating in the band of the surface over it. They cover nothing
+    the larger surface does not, yet each adds a component and three boundary edges, and in a render they
+    flicker through the surface. A piece that covers a part of the shape nothing else covers lies farther
+    off (a leaf that did not join up) or beside the larger piece's faces (in a hole of it), and stays.
+    `tol` <= 0 flags nothing.
     """
     from scipy.spatial import cKDTree
     from trimesh.triangles import closest_point
@@ -767,8 +772,14 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
     qi, fi = np.repeat(query, k), near.ravel()
     larger = owner_size[fi] > size[piece[qi]]  # pieces of one size never absorb each other
     gap = np.full(len(qi), np.inf)
-    gap[larger] = np.linalg.norm(closest_point(corners[fi[larger]], centres[qi[larger]]) - centres[qi[larger]],
-                                 axis=1)
+    tri, q = corners[fi[larger]], centres[qi[larger]]
+    offset = q - closest_point(tri, q)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), FLOAT64_FLOOR)
+    along = np.einsum("ij,ij->i", offset, normal)
+    aside = np.linalg.norm(offset - along[:, None] * normal, axis=1)  # 0 when q lies over the face
+    over = aside <= STACKED_OVER * scale[np.repeat(np.arange(len(query)), k)[larger]]
+    gap[np.flatnonzero(larger)[over]] = np.abs(along[over])
     ratio = gap.reshape(len(query), k).min(1) / np.maximum(scale, FLOAT64_FLOOR)
     worst = np.zeros(n)
     np.maximum.at(worst, piece[query], ratio)

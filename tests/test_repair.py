@@ -400,6 +400,12 @@ def test_stacked_pieces_are_small_pieces_lying_on_a_larger_surface():
     # A triangle just above another surface given as `others` (e.g. the closed part) lies on it too.
     alone = np.array([near, far])
     assert repair.stacked_pieces(v, alone, others=f).tolist() == [True, False]
+    # A triangle in a hole of the grid lies beside its faces, not over them: it covers what they do not.
+    centre = 8 * 12 + 8
+    holed = f[~(f == centre).any(1)]
+    w = np.concatenate([v[:144], [[7.8, 7.8, 0.05], [8.3, 7.9, 0.0], [8.0, 8.3, -0.05]]])
+    plug = np.array([[144, 145, 146]])
+    assert not repair.stacked_pieces(w, np.concatenate([holed, plug]))[-1]
     # Pieces of one size never absorb each other: two triangles lying on one another both stay.
     w = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0.01], [1, 0, 0.01], [0, 1, 0.01]], float)
     assert not repair.stacked_pieces(w, np.array([[0, 1, 2], [3, 4, 5]])).any()

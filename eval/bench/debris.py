@@ -3,7 +3,8 @@
 Noise in the input (and, less often, a clean sample of a thin part) leaves sheets riddled with small holes and
 strewn with pieces of a triangle or two lying in the band of the surface beside them. The extraction
 (`dmesh.extract.surface`) now drops a piece of at most `dmesh.repair.STACKED_MAX_FACES` faces lying within
-`SurfaceConfig.stacked` (1) local edge lengths of a larger piece (`dmesh.repair.stacked_pieces`), and fills a
+`SurfaceConfig.stacked` (1) local edge lengths over a larger piece (`dmesh.repair.stacked_pieces`: over one of
+its faces, not beside it in a hole), and fills a
 sheet's holes of at most `SurfaceConfig.max_sheet_hole` (24) edges and as many of the piece's mean edge lengths,
 never a piece's longest loop (its rim) nor one whose area is over a quarter of its piece's
 (`dmesh.repair.sheet_holes`, filled like the closed part's holes by `dmesh.repair.fill_holes`).
@@ -12,16 +13,19 @@ One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper
 shape; `noise`: Gaussian noise of that fraction of the radius; `scan`: the 6-camera scan with estimated normals;
 `realistic`: the same with range noise 0.0025 and 1 % outliers; `clean`: the exact samples); its final DMesh is
 then extracted again with each variant's surface settings (the same call as the run's own extraction: `same`
-says whether the default variant reproduces the run's mesh). Figures against the GT (100K samples per side):
+says whether the default variant reproduces the run's mesh; `stacked beside faces too` drops a piece near a
+larger one's plane even where it lies in a hole of it, as the first version did). Figures against the GT (100K samples per side):
 CD p2s, faces, boundary edges, components (the GT's beside them), non-manifold edges, edges whose two faces
 disagree in winding, self-intersecting faces (pymeshlab); the pieces' faces dropped, the holes filled and the
 edges kept apart as seams (`seams_cut`: edges a dropped piece hung on, where the faces left would join in a
 twist); `seconds`: the extraction alone.
 
-Regenerate: `python -m eval.bench debris` (14 runs and 98 extractions, about 30 minutes on one core;
+Regenerate: `python -m eval.bench debris` (15 runs and 120 extractions, about 35 minutes on one core;
 `--quick`: the wavy sheet with noise 0.01 only).
 """
 from __future__ import annotations
+
+import contextlib
 
 from eval.bench.common import markdown_table, write_report
 from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run
@@ -30,12 +34,26 @@ INPUTS = (("wavy_sheet", "noise 0.01", {"noise": 0.01}), ("wavy_sheet", "clean",
           ("wavy_sheet", "noise 0.0025", {"noise": 0.0025}), ("bowl", "clean", {}), ("bowl", "noise 0.01", {"noise": 0.01}),
           ("plant", "clean", {}), ("plant", "noise 0.0025", {"noise": 0.0025}), ("plant", "noise 0.01", {"noise": 0.01}),
           ("plant", "scan", SCAN), ("flag_box", "clean", {}), ("flag_box", "noise 0.01", {"noise": 0.01}),
-          ("flag_box", "scan", SCAN), ("flag_box", "realistic", REALISTIC), ("torus", "clean", {}))
-#: (label, SurfaceConfig overrides, unused)
+          ("flag_box", "scan", SCAN), ("flag_box", "realistic", REALISTIC), ("torus", "clean", {}),
+          ("mixed/suzanne.obj", "clean", {}))
+#: (label, SurfaceConfig overrides, dmesh.repair.STACKED_OVER or None for the default)
 VARIANTS = (("neither (before)", {"stacked": 0.0, "max_sheet_hole": 0}, None),
             ("stacked pieces only", {"max_sheet_hole": 0}, None), ("sheet holes only", {"stacked": 0.0}, None),
             ("both (default)", {}, None), ("stacked within 0.5", {"stacked": 0.5}, None),
+            ("stacked beside faces too", {}, 1e9),
             ("sheet holes up to 12", {"max_sheet_hole": 12}, None), ("sheet holes up to 48", {"max_sheet_hole": 48}, None))
+
+
+@contextlib.contextmanager
+def _stacked_over(value):
+    import dmesh.repair as repair
+
+    before = repair.STACKED_OVER
+    repair.STACKED_OVER = before if value is None else value
+    try:
+        yield
+    finally:
+        repair.STACKED_OVER = before
 
 
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
@@ -43,7 +61,7 @@ def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.runner import load_gt
 
     points, normals, gt_path, category = cloud(shape, corruption)
-    res, meshes = extractions(points, normals, VARIANTS)
+    res, meshes = extractions(points, normals, VARIANTS, _stacked_over)
     gt = load_gt(gt_path)
     gt_components = mesh_stats(gt)["components"]
     rows = []
