@@ -291,8 +291,9 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
                                      turn_faces=cfg.turn_faces)
     if cfg.clean:  # after the winding: a hole's loop runs against its faces
         loops = repair.sheet_holes(points, sheet, cfg.max_sheet_hole, avoid=closed)
-        fill, filled = (repair.fill_holes(points, sheet, cfg.max_sheet_hole, others=closed, loops=loops)[:2] if loops
-                        else (np.zeros((0, 3), np.int64), 0))
+        # (off the closed part's edges: a sheet fill along one would give it a third face there)
+        fill, filled = (repair.fill_holes(points, sheet, cfg.max_sheet_hole, others=closed, loops=loops,
+                                          off_others=True)[:2] if loops else (np.zeros((0, 3), np.int64), 0))
         sheet = np.concatenate([sheet, fill])
         seams = repair.seam_edges(sheet)
         cut = seams[repair.edges_in(seams, hung)]

@@ -416,11 +416,11 @@ FILL_RETRIES = 3
 
 
 def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrossed: bool = True,
-               others: np.ndarray | None = None, loops: list[list[int]] | None = None
-               ) -> tuple[np.ndarray, int, int, int]:
+               others: np.ndarray | None = None, loops: list[list[int]] | None = None,
+               off_others: bool = False) -> tuple[np.ndarray, int, int, int]:
     """Triangles closing the holes of consistently wound `faces` that have at most `max_edges` edges
-    (`fill_loop`, no new vertex, no edge used by more than two of them), or the given `loops` (from
-    `hole_loops`, e.g. `sheet_holes`) instead.
+    (`fill_loop`, no new vertex, no edge used by more than two of them; with `off_others`, no fill edge is
+    an edge of `others` either), or the given `loops` (from `hole_loops`, e.g. `sheet_holes`) instead.
 
     With `uncrossed`, every hole is filled first, then the fills with a triangle crossing `faces` or
     another hole's triangles or `others` (more faces of the mesh, e.g. its sheets; (., 3) int)
@@ -443,7 +443,7 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
     fills: dict[int, np.ndarray] = {}  # hole -> its accepted triangles
     banned: dict[int, set] = {}  # hole -> triangles of its earlier fills that crossed
     todo, unfillable = list(range(len(loops))), 0
-    taken = set(map(tuple, edge_table(f)[0].tolist()))  # edges of the faces and of the fills kept so far
+    taken = set(map(tuple, edge_table(np.concatenate([f, others]) if off_others else f)[0].tolist()))
     surface = FaceIndex(v, np.concatenate([f, others])) if uncrossed else None
     for attempt in range(1 + (FILL_RETRIES if uncrossed else 0)):
         kept = [fills[i] for i in sorted(fills)]
