@@ -25,10 +25,8 @@ Regenerate: `python -m eval.bench debris` (15 runs and 120 extractions, about 35
 """
 from __future__ import annotations
 
-import contextlib
-
 from eval.bench.common import markdown_table, write_report
-from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run
+from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run, set_constant
 
 INPUTS = (("wavy_sheet", "noise 0.01", {"noise": 0.01}), ("wavy_sheet", "clean", {}),
           ("wavy_sheet", "noise 0.0025", {"noise": 0.0025}), ("bowl", "clean", {}), ("bowl", "noise 0.01", {"noise": 0.01}),
@@ -44,24 +42,12 @@ VARIANTS = (("neither (before)", {"stacked": 0.0, "max_sheet_hole": 0}, None),
             ("sheet holes up to 12", {"max_sheet_hole": 12}, None), ("sheet holes up to 48", {"max_sheet_hole": 48}, None))
 
 
-@contextlib.contextmanager
-def _stacked_over(value):
-    import dmesh.repair as repair
-
-    before = repair.STACKED_OVER
-    repair.STACKED_OVER = before if value is None else value
-    try:
-        yield
-    finally:
-        repair.STACKED_OVER = before
-
-
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.metrics import chamfer_l1_p2s, mesh_stats
     from eval.runner import load_gt
 
     points, normals, gt_path, category = cloud(shape, corruption)
-    res, meshes = extractions(points, normals, VARIANTS, _stacked_over)
+    res, meshes = extractions(points, normals, VARIANTS, set_constant("dmesh.repair", "STACKED_OVER"))
     gt = load_gt(gt_path)
     gt_components = mesh_stats(gt)["components"]
     rows = []

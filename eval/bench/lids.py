@@ -20,10 +20,8 @@ the torus scan only).
 """
 from __future__ import annotations
 
-import contextlib
-
 from eval.bench.common import markdown_table, write_report
-from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run
+from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run, set_constant
 
 INPUTS = (("torus", "scan", SCAN), ("genus2", "scan", SCAN), ("plant", "scan", SCAN), ("flag_box", "scan", SCAN),
           ("torus", "realistic", REALISTIC), ("genus2", "realistic", REALISTIC), ("plant", "realistic", REALISTIC),
@@ -38,24 +36,12 @@ VARIANTS = (("no lids", {"lids": False}, None), ("flat lids", {"fairing": -1}, N
             ("curvature (fairing 2)", {"fairing": 2}, None))
 
 
-@contextlib.contextmanager
-def _lid_density(value):
-    import dmesh.extract as ex
-
-    before = ex.LID_DENSITY
-    ex.LID_DENSITY = before if value is None else value
-    try:
-        yield
-    finally:
-        ex.LID_DENSITY = before
-
-
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.metrics import chamfer_l1_p2s, mesh_stats
     from eval.runner import load_gt
 
     points, normals, gt_path, category = cloud(shape, corruption)
-    res, meshes = extractions(points, normals, VARIANTS, _lid_density)
+    res, meshes = extractions(points, normals, VARIANTS, set_constant("dmesh.extract", "LID_DENSITY"))
     gt = load_gt(gt_path)
     rows = []
     for label, (mesh, seconds) in meshes.items():

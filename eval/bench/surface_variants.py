@@ -29,6 +29,24 @@ def cloud(shape: str, corruption: dict):
         return z["points"], z["normals"], gt_path, ref.category
 
 
+def set_constant(module: str, name: str):
+    """A `context` for `extractions`: value -> a context manager that sets `module.name` to the value for its
+    length (None: leaves the default)."""
+    import importlib
+
+    @contextlib.contextmanager
+    def setting(value):
+        mod = importlib.import_module(module)
+        before = getattr(mod, name)
+        setattr(mod, name, before if value is None else value)
+        try:
+            yield
+        finally:
+            setattr(mod, name, before)
+
+    return setting
+
+
 def extractions(points, normals, variants, context=None):
     """The `fast` run (seed 0) and {label: (mesh in the run's frame, seconds)} of each variant.
 
