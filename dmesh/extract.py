@@ -280,12 +280,17 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         # twist (a seam: no winding agrees across it). The winding is found with those edges still apart, and
         # those that come out as seams stay apart, as they were.
         hung = repair.nonmanifold_edges(sheet)
+        hung = hung[repair.edges_in(hung, repair.edge_table(sheet[stacked])[0])]
         sheet = sheet[~stacked]
         info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing,
                     fins_dropped=int(fins.sum()), crumbs_dropped=int(crumbs.sum()), stacked_dropped=int(stacked.sum()))
-        apart, source = repair.split_fans(sheet, len(points), hung)
-        sheet = source[repair.orient_sheets(points[source], apart, normals, k=cfg.neighbours, workers=cfg.workers,
-                                            turn_faces=cfg.turn_faces)]
+        if len(hung):
+            apart, source = repair.split_fans(sheet, len(points), hung)
+            sheet = source[repair.orient_sheets(points[source], apart, normals, k=cfg.neighbours,
+                                                workers=cfg.workers, turn_faces=cfg.turn_faces)]
+        else:
+            sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
+                                         turn_faces=cfg.turn_faces)
     else:
         sheet = repair.orient_sheets(points, sheet, normals, k=cfg.neighbours, workers=cfg.workers,
                                      turn_faces=cfg.turn_faces)

@@ -14,6 +14,7 @@ import logging
 
 import numpy as np
 
+from dmesh.neighbourhoods import SURFACE_VARIATION, plane_offsets
 from dmesh.tolerances import FLOAT64_FLOOR
 
 log = logging.getLogger(__name__)
@@ -474,15 +475,24 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
     return fill, len(fills), len(every) - len(fills), crossing
 
 
+#: A sheet hole stays open when a vertex of its loop lies more than this many of its neighbours' mean distances
+#: off the plane of its `STRAY_NEIGHBOURS` nearest mesh vertices, where those lie flat
+#: (`dmesh.neighbourhoods.SURFACE_VARIATION`): an outlier of the input that the mesh reached; the hole beside
+#: it is a gap between faces up to it, and a fill would be one more face of that tent.
+STRAY_OFF = 0.3
+STRAY_NEIGHBOURS = 16
+
+
 def sheet_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, max_share: float = 0.25,
-                avoid: np.ndarray | None = None) -> list[list[int]]:
+                avoid: np.ndarray | None = None, stray_off: float | None = None) -> list[list[int]]:
     """The hole loops (`hole_loops`) inside the sheets `faces` (consistently wound per piece) that a fill may
     close: at most `max_edges` edges and no longer than `max_edges` of its piece's mean edge lengths (a loop
     of long edges runs along triangles spanning a fold, and its fill would too), not the longest loop of
     its piece (its rim: a sheet is open), an area (of the loop's vector area) of at most `max_share` of the
     piece's (a loop that large is part of the rim cut off at a pinch, and its fill would lay a second layer
-    on the sheet), and no edge of `avoid` ((., 3) int faces, e.g. the closed part, whose edges already have
-    their two faces)."""
+    on the sheet), no edge of `avoid` ((., 3) int faces, e.g. the closed part, whose edges already have
+    their two faces), and no vertex off the surface its neighbours form (`stray_off`; None: `STRAY_OFF`;
+    inf: no such test)."""
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0 or max_edges < 3:
         return []
@@ -521,7 +531,29 @@ def sheet_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, max_sha
                 and share[i] <= max_share
                 and not any((min(a, b), max(a, b)) in blocked for a, b in edges)):
             keep.append(loop)
+    stray_off = STRAY_OFF if stray_off is None else float(stray_off)
+    if keep and np.isfinite(stray_off):
+        stray = _stray_vertices(v, np.concatenate([f, np.asarray(avoid, np.int64).reshape(-1, 3)]) if avoid is not None
+                                else f, np.unique(np.concatenate(keep)), stray_off)
+        keep = [loop for loop in keep if not stray.intersection(loop)]
     return keep
+
+
+def _stray_vertices(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, off_ratio: float) -> set:
+    """The vertices of `at` more than `off_ratio` of their neighbours' mean distance off the plane of their
+    `STRAY_NEIGHBOURS` nearest vertices of `faces`, where those form a piece of surface."""
+    from scipy.spatial import cKDTree
+
+    used = np.unique(faces)
+    k = min(STRAY_NEIGHBOURS + 1, len(used))
+    if k < 4:
+        return set()
+    dist, idx = cKDTree(vertices[used]).query(vertices[at], k)
+    nb = used[idx]
+    others = np.argsort(nb == at[:, None], axis=1, kind="stable")[:, : k - 1]  # the vertex itself left out
+    nb, dist = np.take_along_axis(nb, others, 1), np.take_along_axis(dist, others, 1)
+    variation, off = plane_offsets(vertices, at, nb)
+    return set(at[(variation < SURFACE_VARIATION) & (off > off_ratio * dist.mean(1))].tolist())
 
 
 # ------------------------------------------------------------------------------------------------ crossings

@@ -434,3 +434,26 @@ def test_sheet_holes_are_small_inner_holes_not_rims_nor_real_holes():
     # A hole whose rim has an edge of `avoid` (the closed part) is not the sheet's to fill.
     ring_edge = [picked[0][0], picked[0][1]]
     assert repair.sheet_holes(v, sheet, 8, avoid=np.array([[*ring_edge, 143]])) == []
+
+
+def test_sheet_holes_beside_a_stray_vertex_stay_open():
+    """A hole whose loop runs through a vertex lifted off the sheet (an outlier the mesh reached) is not
+    filled: its fill would be a tent up to the stray. Lifted less than `STRAY_OFF` of its neighbours' spacing,
+    or on a sheet bent too sharply to count as a surface there, the hole is filled as before."""
+    v, f = _grid(12)
+    centre = 5 * 12 + 5
+    sheet = f[~(f == centre).any(1)]                      # the 6-edge hole around vertex 65
+    corner = int(np.setdiff1d(f[(f == centre).any(1)], [centre])[0])
+    assert [len(loop) for loop in repair.sheet_holes(v, sheet, 8)] == [6]
+    spacing = 1.4                                        # about the mean distance to a grid vertex's 16 nearest
+    for lift, expected in ((0.2 * spacing, [6]), (0.6 * spacing, []), (1.5, [])):
+        w = v.copy()
+        w[corner, 2] = lift
+        assert [len(loop) for loop in repair.sheet_holes(w, sheet, 8)] == expected, lift
+    w = v.copy()
+    w[corner, 2] = 1.5
+    assert [len(loop) for loop in repair.sheet_holes(w, sheet, 8, stray_off=np.inf)] == [6]
+    folded = v.copy()
+    folded[:, 2] = 0.8 * np.abs(folded[:, 0] - 5)        # a crease through the hole: no plane fits there
+    folded[corner, 2] += 0.6 * spacing
+    assert [len(loop) for loop in repair.sheet_holes(folded, sheet, 8)] == [6]

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from dmesh import native, wdt
+from dmesh.neighbourhoods import SURFACE_VARIATION, plane_offsets
 
 
 def seeds_and_voronoi(points: np.ndarray, num_seeds: int, rng: np.random.Generator, domain: float = 1.0,
@@ -118,26 +119,33 @@ def carve_far_faces(positions: np.ndarray, reals: np.ndarray, data: np.ndarray, 
     return positions, reals, added
 
 
-#: A neighbourhood counts as a piece of surface when its smallest PCA eigenvalue is under this share of the sum.
-SURFACE_VARIATION = 0.03
-#: ... and a point lies on that surface when it is within this many of the neighbours' spacings of its plane.
+#: A point flagged by the distance test lies on the surface its neighbours form (their plane's variation under
+#: `dmesh.neighbourhoods.SURFACE_VARIATION`) when it is within this many of the neighbours' spacings of it ...
 ON_SURFACE = 0.35
 #: ... and is as dense as they are when its mean neighbour distance is at most this many times their median.
 AS_DENSE = 3.0
+#: A point the distance test keeps is still a stray when its neighbours form a piece of surface and it lies more
+#: than this many of their spacings off its plane: an outlier that fell near the surface, where its neighbours
+#: are as close as the surface's own. Far above where noise the presets leave unsmoothed puts surface samples
+#: (such a neighbourhood is too thick to count as a surface), and where a sharp edge bends the plane.
+OFF_SURFACE = 1.0
 
 
 def statistical_inliers(points: np.ndarray, std_ratio: float, k: int = 16, workers: int = 1,
-                        keep_surface: bool = True) -> np.ndarray:
+                        keep_surface: bool = True, off_surface: bool = True) -> np.ndarray:
     """(G,) bool: the points kept by statistical outlier removal (as PCL's and Open3D's), with surface samples
-    rescued.
+    rescued and strays near the surface dropped.
 
     The distance test flags points whose mean distance to their `k` nearest neighbours is more than the mean of
     those distances plus `std_ratio` standard deviations. Alone it also flags the sparsest few percent of any
     clean sample, and whole regions of a scan where rays graze the surface: the holes it leaves there are what
     carving then opens. So with `keep_surface`, a flagged point stays when its neighbours (without it) form a
     piece of surface (`SURFACE_VARIATION`), it lies on that piece (`ON_SURFACE`) and it is about as dense as
-    they are (`AS_DENSE`): a sample of a sparse stretch of surface, not a stray point near one. How much each
-    rule drops on the robustness inputs: docs/preset_choices.md.
+    they are (`AS_DENSE`): a sample of a sparse stretch of surface, not a stray point near one. With
+    `off_surface`, a point the distance test keeps is dropped when its neighbours form a piece of surface and it
+    lies more than `OFF_SURFACE` of their spacings off it: outliers that fell within a few spacings of the
+    surface pass the distance test, and a mesh through them has a spike at each. How much each rule drops on
+    the robustness inputs: docs/preset_choices.md and `python -m eval.bench outlier_filter`.
 
     Written with SciPy's k-d tree and NumPy because the library does not depend on Open3D (a harness extra),
     whose filters have no such rescue."""
@@ -150,17 +158,19 @@ def statistical_inliers(points: np.ndarray, std_ratio: float, k: int = 16, worke
     dist, idx = cKDTree(pts).query(pts, kk, workers=workers)
     mean = dist[:, 1:].mean(1)
     keep = mean <= mean.mean() + float(std_ratio) * mean.std()
-    flagged = np.flatnonzero(~keep)
-    if not keep_surface or kk < 4 or len(flagged) == 0:
+    if kk < 4 or not (keep_surface or off_surface):
         return keep
-    nb = pts[idx[flagged, 1:]]
-    centre = nb.mean(1, keepdims=True)
-    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb - centre, nb - centre))
-    variation = vals[:, 0] / np.maximum(vals.sum(1), np.finfo(float).tiny)
-    off = np.abs(np.einsum("ni,ni->n", pts[flagged] - centre[:, 0], vecs[:, :, 0]))
-    spacing = np.median(mean[idx[flagged, 1:]], axis=1)  # the neighbours' own mean neighbour distance
-    on = (variation < SURFACE_VARIATION) & (off < ON_SURFACE * spacing) & (mean[flagged] <= AS_DENSE * spacing)
-    keep[flagged[on]] = True
+    test = np.arange(len(pts)) if off_surface else np.flatnonzero(~keep)
+    variation, off = plane_offsets(pts, test, idx[test, 1:])
+    surface = variation < SURFACE_VARIATION
+    spacing = np.median(mean[idx[test, 1:]], axis=1)  # the neighbours' own mean neighbour distance
+    if keep_surface:
+        on = ~keep[test] & surface & (off < ON_SURFACE * spacing) & (mean[test] <= AS_DENSE * spacing)
+        rescued = test[on]
+    if off_surface:
+        keep[test[keep[test] & surface & (off > OFF_SURFACE * spacing)]] = False
+    if keep_surface:
+        keep[rescued] = True
     return keep
 
 

@@ -7,11 +7,14 @@ strewn with pieces of a triangle or two lying in the band of the surface beside 
 its faces, not beside it in a hole), and fills a
 sheet's holes of at most `SurfaceConfig.max_sheet_hole` (24) edges and as many of the piece's mean edge lengths,
 never a piece's longest loop (its rim) nor one whose area is over a quarter of its piece's
-(`dmesh.repair.sheet_holes`, filled like the closed part's holes by `dmesh.repair.fill_holes`).
+(`dmesh.repair.sheet_holes`, filled like the closed part's holes by `dmesh.repair.fill_holes`), unless a vertex
+of its loop lies off the surface its neighbouring vertices form (`dmesh.repair.STRAY_OFF`: an outlier the mesh
+reached; `sheet holes beside strays too` fills those as well, as the first version did).
 
 One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper`'s cache: 100K points of each
 shape; `noise`: Gaussian noise of that fraction of the radius; `scan`: the 6-camera scan with estimated normals;
-`realistic`: the same with range noise 0.0025 and 1 % outliers; `clean`: the exact samples); its final DMesh is
+`realistic`: the same with range noise 0.0025 and 1 % outliers; `outliers`: that fraction of the points
+scattered in the bounding box; `clean`: the exact samples); its final DMesh is
 then extracted again with each variant's surface settings (the same call as the run's own extraction: `same`
 says whether the default variant reproduces the run's mesh; `stacked beside faces too` drops a piece near a
 larger one's plane even where it lies in a hole of it, as the first version did). Figures against the GT (100K samples per side):
@@ -20,10 +23,12 @@ disagree in winding, self-intersecting faces (pymeshlab); the pieces' faces drop
 edges kept apart as seams (`seams_cut`: edges a dropped piece hung on, where the faces left would join in a
 twist); `seconds`: the extraction alone.
 
-Regenerate: `python -m eval.bench debris` (15 runs and 120 extractions, about 35 minutes on one core;
+Regenerate: `python -m eval.bench debris` (17 runs and 153 extractions, about 45 minutes on one core;
 `--quick`: the wavy sheet with noise 0.01 only).
 """
 from __future__ import annotations
+
+import contextlib
 
 from eval.bench.common import markdown_table, write_report
 from eval.bench.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run, set_constant
@@ -33,13 +38,23 @@ INPUTS = (("wavy_sheet", "noise 0.01", {"noise": 0.01}), ("wavy_sheet", "clean",
           ("plant", "clean", {}), ("plant", "noise 0.0025", {"noise": 0.0025}), ("plant", "noise 0.01", {"noise": 0.01}),
           ("plant", "scan", SCAN), ("flag_box", "clean", {}), ("flag_box", "noise 0.01", {"noise": 0.01}),
           ("flag_box", "scan", SCAN), ("flag_box", "realistic", REALISTIC), ("torus", "clean", {}),
-          ("mixed/suzanne.obj", "clean", {}))
-#: (label, SurfaceConfig overrides, dmesh.repair.STACKED_OVER or None for the default)
+          ("mixed/suzanne.obj", "clean", {}), ("bowl", "outliers 0.1", {"outliers": 0.1}),
+          ("wavy_sheet", "outliers 0.1", {"outliers": 0.1}))
+#: (label, SurfaceConfig overrides, {dmesh.repair constant: value} or None for the defaults)
 VARIANTS = (("neither (before)", {"stacked": 0.0, "max_sheet_hole": 0}, None),
             ("stacked pieces only", {"max_sheet_hole": 0}, None), ("sheet holes only", {"stacked": 0.0}, None),
             ("both (default)", {}, None), ("stacked within 0.5", {"stacked": 0.5}, None),
-            ("stacked beside faces too", {}, 1e9),
+            ("stacked beside faces too", {}, {"STACKED_OVER": 1e9}),
+            ("sheet holes beside strays too", {}, {"STRAY_OFF": float("inf")}),
             ("sheet holes up to 12", {"max_sheet_hole": 12}, None), ("sheet holes up to 48", {"max_sheet_hole": 48}, None))
+
+
+def _repair_constants(extra: dict | None):
+    """A context with the `dmesh.repair` constants of `extra` set (None: all defaults)."""
+    stack = contextlib.ExitStack()
+    for name, value in (extra or {}).items():
+        stack.enter_context(set_constant("dmesh.repair", name)(value))
+    return stack
 
 
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
@@ -47,7 +62,7 @@ def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.runner import load_gt
 
     points, normals, gt_path, category = cloud(shape, corruption)
-    res, meshes = extractions(points, normals, VARIANTS, set_constant("dmesh.repair", "STACKED_OVER"))
+    res, meshes = extractions(points, normals, VARIANTS, _repair_constants)
     gt = load_gt(gt_path)
     gt_components = mesh_stats(gt)["components"]
     rows = []

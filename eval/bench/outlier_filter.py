@@ -4,13 +4,15 @@
 is more than 2 standard deviations above the mean (statistical outlier removal, as PCL's and Open3D's). Alone,
 that test also flags the sparsest few percent of any clean sample, and whole stretches of a scan where the rays
 graze the surface. The rescue keeps a flagged point whose neighbours form a piece of surface that it lies on.
-On the robustness sweep's inputs (the same cached files, 100K points, unit radius), this bench counts the true
+Outliers that fall within a few spacings of the surface pass the distance test; the off-surface test then drops a
+point the distance test kept when its neighbours form a piece of surface and it lies more than
+`dmesh.recon.init.OFF_SURFACE` (1) of their spacings off it. On the robustness sweep's inputs (the same cached files, 100K points, unit radius), this bench counts the true
 outliers (`is_outlier`) and the surface samples each rule drops. Then it runs the `fast` preset on a few of
-them without a filter, with the distance test alone and with the rescue, and measures CD p2s (x1e-3,
+them without a filter and with each rule, and measures CD p2s (x1e-3,
 `eval.metrics.chamfer_l1_p2s`, 100K samples).
 
-Regenerate: `python -m eval.bench outlier_filter` (about 15 minutes: the counts take seconds, each
-reconstruction about a minute; `--quick`: the torus only, no reconstruction).
+Regenerate: `python -m eval.bench outlier_filter` (about 35 minutes: the counts take seconds, each of the 24
+reconstructions about a minute; `--quick`: the torus only, no reconstruction).
 """
 from __future__ import annotations
 
@@ -23,7 +25,10 @@ SHAPES = ("torus", "genus2", "bowl", "wavy_sheet", "plant", "flag_box")  # eval/
 VARIANTS = ({}, {"outliers": 0.01}, {"outliers": 0.05}, {"outliers": 0.1}, {"nonuniform": 8}, {"scan": 6},
             {"scan": 6, "noise": 0.0025, "outliers": 0.01})
 RECONSTRUCT = (("torus", {"outliers": 0.05}), ("flag_box", {"outliers": 0.05}), ("torus", {"scan": 6}),
-               ("flag_box", {"scan": 6}))
+               ("flag_box", {"scan": 6}), ("bowl", {"outliers": 0.1}), ("wavy_sheet", {"outliers": 0.1}))
+#: (name, keep_surface, off_surface) of `statistical_inliers`: the distance test alone, with the rescue, and with
+#: the off-surface test too (the presets').
+RULES = (("distance", False, False), ("rescue", True, False), ("off_surface", True, True))
 N_POINTS = 100_000
 
 
@@ -54,8 +59,8 @@ def counts(shapes) -> list[dict]:
         for variant in VARIANTS:
             pts, _, outlier, _ = _cloud(shape, variant)
             row = {"shape": shape, "input": _name(variant), "outliers": int(outlier.sum())}
-            for rule, rescue in (("distance", False), ("rescue", True)):
-                keep = statistical_inliers(pts, 2.0, keep_surface=rescue)
+            for rule, rescue, off in RULES:
+                keep = statistical_inliers(pts, 2.0, keep_surface=rescue, off_surface=off)
                 row[f"{rule}_outliers_dropped"] = int((~keep & outlier).sum())
                 row[f"{rule}_surface_dropped"] = int((~keep & ~outlier).sum())
             rows.append(row)
@@ -76,10 +81,11 @@ def reconstructions() -> list[dict]:
         pts, nrm, _, gt_path = _cloud(shape, variant)
         gt = trimesh.load(gt_path, process=False, force="mesh")
         row = {"shape": shape, "input": _name(variant)}
-        for rule, rescue in (("none", None), ("distance", False), ("rescue", True)):
-            # The preset's filter step, done here so the distance test alone can run too: the filtered cloud
-            # then goes to `fast` with its own filter off (what `clean_input` would pass on).
-            keep = np.ones(len(pts), bool) if rescue is None else statistical_inliers(pts, 2.0, keep_surface=rescue)
+        for rule, rescue, off in (("none", None, None), *RULES):
+            # The preset's filter step, done here so each rule can run: the filtered cloud then goes to `fast`
+            # with its own filter off (what `clean_input` would pass on).
+            keep = (np.ones(len(pts), bool) if rescue is None
+                    else statistical_inliers(pts, 2.0, keep_surface=rescue, off_surface=off))
             result = reconstruct(pts[keep], nrm[keep], PointCloudConfig.fast(outlier_std=0.0))
             row[f"cd_p2s_{rule}"] = 1e3 * chamfer_l1_p2s(result.mesh, gt)
             print(f"  {shape} {row['input']} filter {rule}: {row[f'cd_p2s_{rule}']:.3f}", flush=True)
@@ -89,16 +95,15 @@ def reconstructions() -> list[dict]:
 
 def main(out: str = "reports", quick: bool = False) -> None:
     rows = counts(SHAPES[:1] if quick else SHAPES)
-    cols = ["shape", "input", "outliers", "distance_outliers_dropped", "distance_surface_dropped",
-            "rescue_outliers_dropped", "rescue_surface_dropped"]
+    cols = ["shape", "input", "outliers"] + [f"{rule}_{what}_dropped" for rule, _, _ in RULES
+                                              for what in ("outliers", "surface")]
     table = markdown_table(rows, cols)
     if not quick:
         recon = reconstructions()
-        fmt = {c: ".3f" for c in ("cd_p2s_none", "cd_p2s_distance", "cd_p2s_rescue")}
-        table += ("\nThe `fast` preset on some of them, CD p2s x1e-3, without a filter, with the distance test alone "
-                  "and with the rescue (the preset's):\n\n"
-                  + markdown_table(recon, ["shape", "input", "cd_p2s_none", "cd_p2s_distance", "cd_p2s_rescue"],
-                                   fmt))
+        cd = [f"cd_p2s_{rule}" for rule in ("none", *(r[0] for r in RULES))]
+        table += ("\nThe `fast` preset on some of them, CD p2s x1e-3, without a filter, with the distance test alone, "
+                  "with the rescue, and with the off-surface test too (the preset's):\n\n"
+                  + markdown_table(recon, ["shape", "input", *cd], {c: ".3f" for c in cd}))
         rows = rows + recon
     keys = list(dict.fromkeys(k for r in rows for k in r))  # one CSV for both tables
     rows = [{k: r.get(k, "") for k in keys} for r in rows]
