@@ -28,8 +28,11 @@ repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their
 inside tets' own boundary across them, refined and faired (`dmesh.solid.large_lids`, `_fair_lids`), and pinches
 are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
-do not share an edge with the closed part, wound consistently and facing the input normals when given;
-where sheets meet at an edge (three or more faces on it) or at a vertex (or a pinch the relabelling left),
+do not share an edge with the closed part, wound consistently and facing the input normals when given.
+Small sheet pieces lying over a larger piece or the closed part (noise leaves them in the surface's band) are
+dropped (`dmesh.repair.stacked_pieces`), and a sheet's small inner holes are filled
+(`dmesh.repair.sheet_holes`), not its rim, nor a hole beside a vertex off the surface its neighbours form (an
+outlier the mesh reached: the fill would be a tent up to it). Where sheets meet at an edge (three or more faces on it) or at a vertex (or a pinch the relabelling left),
 each gets its own copy of the vertices, moved a little into its own faces (`dmesh.repair.split_fans`,
 `dmesh.repair.separate_copies`): the surface no longer touches itself there, so a merge of vertices by
 position (STL, trimesh's default load) does not join the copies again, and no face is dropped (keeping only
