@@ -30,7 +30,8 @@ are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
 do not share an edge with the closed part, wound consistently and facing the input normals when given.
 Small sheet pieces lying over a larger piece or the closed part (noise leaves them in the surface's band) are
-dropped (`dmesh.repair.stacked_pieces`), and a sheet's small inner holes are filled
+dropped (`dmesh.repair.stacked_pieces`), and so are those floating apart from every larger piece (triangles
+among stray points: `dmesh.repair.floating_crumbs`), and a sheet's small inner holes are filled
 (`dmesh.repair.sheet_holes`), not its rim, nor a hole beside a vertex off the surface its neighbours form (an
 outlier the mesh reached: the fill would be a tent up to it). Where sheets meet at an edge (three or more faces on it) or at a vertex (or a pinch the relabelling left),
 each gets its own copy of the vertices, moved a little into its own faces (`dmesh.repair.split_fans`,
@@ -154,7 +155,8 @@ class SurfaceConfig:
     max_hole: int = 64         # holes of the closed part with at most this many edges are filled; open pieces
                                # of more faces than this can be set aside (dmesh.solid.open_sheet_walls)
     max_crumb: int = 4         # a sheet part made only of pieces this small (edge-connected faces) is dropped,
-                               # and so is a closed piece this small beside a larger one
+                               # and so is a closed piece this small beside a larger one, and a sheet piece this
+                               # small floating apart from the larger ones (dmesh.repair.floating_crumbs)
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
     stacked: float = 1.0       # ... and a sheet piece of a few faces lying within this many edge lengths of a
                                # larger piece (dmesh.repair.stacked_pieces); 0 keeps them
@@ -273,7 +275,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         lid = np.r_[lid, np.zeros(len(fill), bool)]
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
-        crumbs = repair.crumbs(sheet, cfg.max_crumb)
+        crumbs = repair.crumbs(sheet, cfg.max_crumb) | repair.floating_crumbs(points, sheet, cfg.max_crumb, closed)
         if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
             crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]

@@ -750,6 +750,39 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
     return small if small.all() else np.zeros(F, bool)
 
 
+#: A crumb beside real sheets is dropped when all its vertices lie farther than this many of the sheets' median
+#: edge lengths from every vertex of a larger piece (`floating_crumbs`): a triangle among stray points, where a
+#: part of a thin sheet that did not join up lies within an edge or two of it.
+FLOATING = 4.0
+
+
+def floating_crumbs(vertices: np.ndarray, faces: np.ndarray, max_faces: int, others: np.ndarray | None = None,
+                    gap: float | None = None) -> np.ndarray:
+    """(F,) bool: the faces of the crumbs (edge-connected pieces of at most `max_faces` faces) of `faces` that
+    float apart: none of their vertices within `gap` median edge lengths of a vertex of a larger piece or of
+    `others` ((., 3) int, e.g. the closed part; `gap` None: `FLOATING`). When every piece is a crumb, none
+    (`crumbs` decides those)."""
+    from scipy.spatial import cKDTree
+
+    gap = FLOATING if gap is None else float(gap)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0 or max_faces < 1:
+        return np.zeros(len(f), bool)
+    _, comp = edge_pieces(f)
+    small = np.bincount(comp)[comp] <= max_faces
+    if not small.any() or small.all():
+        return np.zeros(len(f), bool)
+    v = np.asarray(vertices, dtype=np.float64)
+    large = f[~small]
+    anchors = np.unique(large if others is None or not len(others) else np.concatenate([large, others]))
+    he = _half_edges(large)
+    spacing = float(np.median(np.linalg.norm(v[he[:, 1]] - v[he[:, 0]], axis=1)))
+    near = cKDTree(v[anchors]).query(v[f[small]].reshape(-1, 3))[0].reshape(-1, 3).min(1)
+    piece_near = np.full(int(comp.max()) + 1, np.inf)
+    np.minimum.at(piece_near, comp[small], near)
+    return small & (piece_near[comp] > gap * spacing)
+
+
 #: Largest piece (faces) that `stacked_pieces` tests: stray copies are a few faces each; a larger piece near
 #: another is more likely a real part of the shape lying close to it.
 STACKED_MAX_FACES = 64

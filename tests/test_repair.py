@@ -457,3 +457,23 @@ def test_sheet_holes_beside_a_stray_vertex_stay_open():
     folded[:, 2] = 0.8 * np.abs(folded[:, 0] - 5)        # a crease through the hole: no plane fits there
     folded[corner, 2] += 0.6 * spacing
     assert [len(loop) for loop in repair.sheet_holes(folded, sheet, 8)] == [6]
+
+
+def test_floating_crumbs_are_small_pieces_far_from_every_larger_one():
+    """Beside a real sheet, a crumb within an edge or two of it stays (a thin part that did not join up); one
+    several edge lengths from every larger piece and from `others` is a triangle among stray points."""
+    v, f = _grid(12)                                      # unit edges; median edge length 1
+    tri = np.array([[0.0, 0.0, 0.0], [0.8, 0.0, 0.0], [0.0, 0.8, 0.0]])
+    near = tri + [12.0, 5.0, 0.0]                         # 1 unit past the grid's rim
+    far = tri + [5.0, 5.0, 9.0]                           # 9 units above it
+    by_others = tri + [30.0, 0.0, 0.0]                    # far from the grid, beside `others`
+    w = np.concatenate([v, near, far, by_others, by_others[:1] + [0.0, 0.0, 1.0]])
+    n = len(v)
+    faces = np.concatenate([f, [[n, n + 1, n + 2], [n + 3, n + 4, n + 5], [n + 6, n + 7, n + 8]]])
+    others = np.array([[n + 9, n + 9, n + 9]])
+    flag = repair.floating_crumbs(w, faces, 4, others)
+    assert not flag[: len(f)].any()
+    assert flag[len(f):].tolist() == [False, True, False]
+    assert repair.floating_crumbs(w, faces, 4).tolist()[len(f):] == [False, True, True]
+    assert not repair.floating_crumbs(w, faces, 4, gap=20.0).any()
+    assert not repair.floating_crumbs(w, faces[len(f):], 4).any()  # only crumbs: `crumbs` decides
