@@ -9,7 +9,9 @@ sheet's holes of at most `SurfaceConfig.max_sheet_hole` (24) edges and as many o
 never a piece's longest loop (its rim) nor one whose area is over a quarter of its piece's
 (`dmesh.repair.sheet_holes`, filled like the closed part's holes by `dmesh.repair.fill_holes`), unless a vertex
 of its loop lies off the surface its neighbouring vertices form (`dmesh.repair.STRAY_OFF`: an outlier the mesh
-reached; `sheet holes beside strays too` fills those as well, as the first version did).
+reached; `sheet holes beside strays too` fills those as well, as the first version did). A piece of at most 4
+faces floating more than `dmesh.repair.FLOATING` median edge lengths from every larger piece is dropped
+(`dmesh.repair.floating_crumbs`; `floating crumbs kept`: as before it).
 
 One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper`'s cache: 100K points of each
 shape; `noise`: Gaussian noise of that fraction of the radius; `scan`: the 6-camera scan with estimated normals;
@@ -23,7 +25,7 @@ disagree in winding, self-intersecting faces (pymeshlab); the pieces' faces drop
 edges kept apart as seams (`seams_cut`: edges a dropped piece hung on, where the faces left would join in a
 twist); `seconds`: the extraction alone.
 
-Regenerate: `python -m eval.bench debris` (17 runs and 153 extractions, about 45 minutes on one core;
+Regenerate: `python -m eval.bench debris` (17 runs and 170 extractions, about 50 minutes on one core;
 `--quick`: the wavy sheet with noise 0.01 only).
 """
 from __future__ import annotations
@@ -46,6 +48,7 @@ VARIANTS = (("neither (before)", {"stacked": 0.0, "max_sheet_hole": 0}, None),
             ("both (default)", {}, None), ("stacked within 0.5", {"stacked": 0.5}, None),
             ("stacked beside faces too", {}, {"STACKED_OVER": 1e9}),
             ("sheet holes beside strays too", {}, {"STRAY_OFF": float("inf")}),
+            ("floating crumbs kept", {}, {"FLOATING": float("inf")}),
             ("sheet holes up to 12", {"max_sheet_hole": 12}, None), ("sheet holes up to 48", {"max_sheet_hole": 48}, None))
 
 
