@@ -25,8 +25,10 @@ are labelled inside or outside by walks to the hull, and the mesh faces between 
 tet form the closed part, wound outward (open sheets that fooled the walks are set aside and the walks
 repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their own vertices, larger ones
 (parts of a closed surface the input did not sample, e.g. what a scanner did not see) are closed by the
-inside tets' own boundary across them, refined and faired (`dmesh.solid.large_lids`, `_fair_lids`), and pinches
-are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
+inside tets' own boundary across them, refined and faired (`dmesh.solid.large_lids`, `_fair_lids`); where the
+walls themselves span such a stretch (faces of the triangulation between samples on either side of it, far
+longer than the surface's median edge: `dmesh.repair.long_faces`), those faces are refined and faired the
+same way, their corners (samples) held. Pinches are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
 do not share an edge with the closed part, wound consistently and facing the input normals when given.
 Small sheet pieces lying over a larger piece or the closed part (noise leaves them in the surface's band) are
@@ -167,6 +169,10 @@ class SurfaceConfig:
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
     lids: bool = True          # ... and close holes of more than max_hole edges with the inside tets' boundary
                                # (dmesh.solid.large_lids), refined and faired (dmesh.native.refine_and_fair)
+    spans: float = 6.0         # a closed-part face whose longest edge is over this many median edge lengths spans
+                               # a stretch the input did not sample (dmesh.repair.long_faces): it is refined and
+                               # faired like a lid, its corners held, and kept flat where its lid piece is
+                               # dropped (0: none)
     fairing: int = 1           # the lids' fairing continuity (0 membrane, 1 thin plate, 2 curvature
                                # variation); -1: the lids stay faces of the triangulation, flat
     neighbours: int = 10       # input normals averaged per face to turn sheets (dmesh.repair.orient_sheets)
@@ -186,6 +192,8 @@ class SurfaceConfig:
             raise ValueError(f"SurfaceConfig.min_thickness must be >= 0, got {self.min_thickness}")
         if int(self.neighbours) < 1:
             raise ValueError(f"SurfaceConfig.neighbours must be >= 1, got {self.neighbours}")
+        if not self.spans >= 0.0:
+            raise ValueError(f"SurfaceConfig.spans must be >= 0, got {self.spans}")
         if not self.stacked >= 0.0:
             raise ValueError(f"SurfaceConfig.stacked must be >= 0, got {self.stacked}")
         for name in ("max_hole", "max_crumb", "max_sheet_hole", "repair_rounds"):
@@ -206,11 +214,13 @@ class Surface:
             vertex per sheet: `dmesh.repair.split_fans`; `_surface_mesh` moves them apart).
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
-            tets_flipped, closed_faces, lids, lid_faces, holes_filled, hole_faces, holes_left (holes_crossing
+            tets_flipped, closed_faces, lids, lid_faces, span_faces, holes_filled, hole_faces, holes_left (holes_crossing
             of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
             stacked_dropped, sheet_holes_filled, sheet_hole_faces, seams_cut,
             split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
         lid: (K,) bool, the faces of the lids over large holes of the closed part (`SurfaceConfig.lids`).
+        span: (K,) bool, the closed part's faces across a stretch the input did not sample
+            (`SurfaceConfig.spans`), faired with the lids.
     """
 
     faces: np.ndarray
@@ -218,6 +228,7 @@ class Surface:
     closed: int
     info: dict = field(default_factory=dict)
     lid: np.ndarray | None = None
+    span: np.ndarray | None = None
 
 
 def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = None) -> Surface:
@@ -237,7 +248,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
     points = pd.points
     if not walls.any():
         return Surface(np.zeros((0, 3), np.int64), np.arange(len(points)), 0, {"closed_faces": 0, "sheet_faces": 0},
-                       np.zeros(0, bool))
+                       np.zeros(0, bool), np.zeros(0, bool))
     if normals is not None:
         normals = (np.asarray(normals[0], dtype=np.float64), np.asarray(normals[1], dtype=np.float64))
     sign = None if normals is None else solid.wall_signs(pd, walls, *normals, workers=cfg.workers)
@@ -273,6 +284,9 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
                                         else (closed, 0, 0, 0))
         closed = np.concatenate([closed, fill])
         lid = np.r_[lid, np.zeros(len(fill), bool)]
+        span = (repair.long_faces(points, closed, cfg.spans) & ~lid if cfg.spans > 0 and len(closed)
+                else np.zeros(len(closed), bool))
+        info.update(span_faces=int(span.sum()))
         fins = repair.faces_on_edges(sheet, closed)
         sheet = sheet[~fins]
         crumbs = repair.crumbs(sheet, cfg.max_crumb) | repair.floating_crumbs(points, sheet, cfg.max_crumb, closed)
@@ -310,6 +324,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         info.update(sheet_holes_filled=filled, sheet_hole_faces=int(len(fill)), seams_cut=int(len(cut)))
     faces = np.concatenate([closed, sheet])
     lid = np.r_[lid, np.zeros(len(sheet), bool)]
+    span = np.r_[span, np.zeros(len(faces) - len(span), bool)] if cfg.clean else np.zeros(len(faces), bool)
     vertices = np.arange(len(points))
     if cfg.clean:  # sheets meeting at an edge or a vertex get their own copies of its vertices, which
         # `_surface_mesh` moves apart: copies left on one point would make the branch or pinch again in any
@@ -320,7 +335,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         kept = np.flatnonzero(keep)
         crumbs = repair.closed_crumbs(faces[kept], cfg.max_crumb)
         keep[kept[crumbs]] = False
-        faces, lid = faces[keep], lid[keep]
+        faces, lid, span = faces[keep], lid[keep], span[keep]
         closed_count = int(keep[:len(closed)].sum())
         info.update(split_vertices=int(len(vertices) - len(points)), folds_dropped=folds,
                     closed_crumbs_dropped=int(crumbs.sum()))
@@ -328,7 +343,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         closed_count = len(closed)
     info["sheet_faces"] = int(len(faces) - closed_count)
     log.debug("surface: %s", info)
-    return Surface(faces, vertices, closed_count, info, lid)
+    return Surface(faces, vertices, closed_count, info, lid, span)
 
 
 def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool = False, normals=None,
@@ -380,7 +395,7 @@ def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None):
     result = surface(pd, walls, normals, cfg)
     vertices = separate_copies(pd.points[result.vertices], result.faces, result.vertices)
     faces = result.faces
-    if result.lid is not None and result.lid.any() and cfg.fairing >= 0:
+    if result.lid is not None and (result.lid.any() or result.span.any()) and cfg.fairing >= 0:
         vertices, faces = _fair_lids(vertices, faces, result, cfg.fairing)
     mesh = to_trimesh(vertices, faces)
     mesh.metadata["surface"] = result.info
@@ -388,33 +403,38 @@ def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None):
 
 
 def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continuity: int):
-    """The closed part's lids refined and faired (`dmesh.native.refine_and_fair`); their info in
-    `result.info` (lid_vertices_added, lids_faired, lids_dropped).
+    """The closed part's lids and spans refined and faired (`dmesh.native.refine_and_fair`; a span's corners
+    held); their info in `result.info` (lid_vertices_added, lids_faired, lids_dropped: pieces of lids and spans).
 
     A faired lid can fold where its rim is jagged, or pass through a nearby part of the surface (a leaf over
     the hole). Folds are smoothed away (`dmesh.repair.untangle`). A lid piece with a face still crossing another
     is dropped, and the others are faired again without it: it closes a hole in a tight spot, next to other
     parts of the surface, where the inside/outside labelling is least sure (README: such lids kept flat made
-    mixed shapes worse), so its hole stays open as it did before lids. A closed part CGAL cannot take as a
-    2-manifold drops all its lids, with a warning."""
+    mixed shapes worse), so its hole stays open as it did before lids; a dropped piece's spans stay, flat. A
+    closed part CGAL cannot take as a 2-manifold drops all its lids, with a warning."""
     from dmesh import native, repair
 
     closed, sheets = faces[:result.closed], faces[result.closed:]
-    lid = result.lid[:result.closed]
+    span = (np.zeros(result.closed, bool) if result.span is None else result.span[:result.closed])
+    lid = result.lid[:result.closed] | span
     count, piece = repair.edge_pieces(closed[lid])
     piece_of = np.full(len(closed), -1)
     piece_of[lid] = piece
     dropped = np.zeros(count, bool)
+    # A span's vertices are input samples: only the vertices refinement adds move (a lid's own may move too).
+    hold = np.ones(len(vertices), bool)
+    hold[closed[lid & ~span]] = False
     v, f, solved = vertices, closed, True
     while not dropped.all():
         patch = lid & ~dropped[np.maximum(piece_of, 0)]
         try:
-            v, f, refined, solved = native.refine_and_fair(vertices, closed, patch, LID_DENSITY, continuity)
+            v, f, refined, solved = native.refine_and_fair(vertices, closed, patch, LID_DENSITY, continuity, hold)
         except ValueError as err:
             log.warning("surface: the lids over %d large holes are dropped (%s)", count, err)
             dropped[:] = True
             break
-        v, hit = repair.untangle(v, np.concatenate([f, sheets]), np.r_[refined, np.zeros(len(sheets), bool)])
+        v, hit = repair.untangle(v, np.concatenate([f, sheets]), np.r_[refined, np.zeros(len(sheets), bool)],
+                                 hold=hold)
         if not hit.any():
             break
         # Refinement keeps each face's index for one of its parts, so a refined piece holding an input face
@@ -435,11 +455,11 @@ def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continu
                     "unfaired", count)
     # The dropped pieces' faces were left out of the last patch, so they are still the input's, at their indices.
     keep = np.ones(len(f), bool)
-    keep[:len(closed)] = ~(lid & dropped[np.maximum(piece_of, 0)])
+    keep[:len(closed)] = ~(lid & ~span & dropped[np.maximum(piece_of, 0)])  # a span stays, flat
     result.info.update(lid_vertices_added=int(len(v) - len(vertices)), lids_faired=bool(solved and not dropped.all()),
                        lids_dropped=int(dropped.sum()))
     if dropped.any():
-        result.info["lid_faces"] -= int((lid & dropped[np.maximum(piece_of, 0)]).sum())
+        result.info["lid_faces"] = result.info.get("lid_faces", 0) - int((lid & ~span & dropped[np.maximum(piece_of, 0)]).sum())
     return v, np.concatenate([f[keep], sheets])
 
 

@@ -87,8 +87,8 @@ def jet_smooth(points, k: int, degree: int = 2, parallel: int = 0) -> np.ndarray
     return _native.jet_smooth(as_points(points), int(k), int(degree), int(degree), int(parallel))
 
 
-def refine_and_fair(vertices, faces, patch, density: float = 2.0 ** 0.5,
-                    continuity: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+def refine_and_fair(vertices, faces, patch, density: float = 2.0 ** 0.5, continuity: int = 1,
+                    hold=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """A smooth surface over the `patch` faces of a mesh (CGAL's `refine` and `fair`, the last two steps of
     Liepa's hole filling).
 
@@ -96,8 +96,10 @@ def refine_and_fair(vertices, faces, patch, density: float = 2.0 ** 0.5,
         vertices: (V, 3) float; faces: (F, 3) int, a consistently oriented 2-manifold; patch: (F,) bool.
         density: `refine`'s density control factor (larger: more new vertices; CGAL's default sqrt(2)).
         continuity: fairing continuity at the patch's rim: 0 membrane, 1 thin plate, 2 curvature variation.
+        hold: None, or (V,) bool: input vertices that stay where they are even with only patch faces around them.
     Returns:
-        (V', 3) float64 vertices (the input's first, those with only patch faces around them moved), (F', 3)
+        (V', 3) float64 vertices (the input's first, those with only patch faces around them and not held
+        moved), (F', 3)
         int64 faces, (F',) bool patch faces, and whether the fairing system was solved.
     Raises:
         ValueError: faces that do not make a consistently oriented 2-manifold, bad indices or settings.
@@ -106,7 +108,12 @@ def refine_and_fair(vertices, faces, patch, density: float = 2.0 ** 0.5,
     mask = np.ascontiguousarray(np.asarray(patch, dtype=bool).reshape(-1).view(np.uint8))
     if len(mask) != len(f):
         raise ValueError(f"patch has {len(mask)} entries for {len(f)} faces")
-    v, f, flag, solved = _native.refine_and_fair(as_points(vertices, "vertices"), f, mask, float(density), int(continuity))
+    v = as_points(vertices, "vertices")
+    held = np.zeros(len(v), bool) if hold is None else np.asarray(hold, dtype=bool).reshape(-1)
+    if len(held) != len(v):
+        raise ValueError(f"hold has {len(held)} entries for {len(v)} vertices")
+    held = np.ascontiguousarray(held.view(np.uint8))
+    v, f, flag, solved = _native.refine_and_fair(v, f, mask, float(density), int(continuity), held)
     return v, f.astype(np.int64), flag.astype(bool), bool(solved)
 
 

@@ -637,8 +637,8 @@ class FaceIndex:
 UNTANGLE_ROUNDS = 5
 
 
-def untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray,
-             rounds: int = UNTANGLE_ROUNDS) -> tuple[np.ndarray, np.ndarray]:
+def untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray, rounds: int = UNTANGLE_ROUNDS,
+             hold: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Smooths away the folds of a patch: where a patch face crosses another face (`FaceIndex`), the patch's
     free vertices (those on patch faces only) within two rings of it move to the mean of their neighbours (five
     uniform Laplacian sweeps), and the test runs again, up to `rounds` times.
@@ -648,6 +648,7 @@ def untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray,
 
     Args:
         vertices: (V, 3) float; faces: (F, 3) int; patch: (F,) bool.
+        hold: None, or (H,) bool over the first H vertices: those that are never free.
     Returns:
         (V, 3) float64 vertices (only free patch vertices moved) and (P,) bool over `faces[patch]`: the patch
         faces that still cross a face.
@@ -664,6 +665,8 @@ def untangle(vertices: np.ndarray, faces: np.ndarray, patch: np.ndarray,
     free = np.zeros(len(v), bool)
     free[tris.reshape(-1)] = True
     free[f[~patch].reshape(-1)] = False
+    if hold is not None:
+        free[:len(hold)] &= ~np.asarray(hold, dtype=bool)
     e = _half_edges(tris)
     ring = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v), len(v))).tocsr()
     ring = ((ring + ring.T) > 0).astype(np.float64)
@@ -730,6 +733,18 @@ def edge_pieces(faces: np.ndarray, manifold: bool = False) -> tuple[int, np.ndar
     a, b = order[:-1][same_edge] % F, order[1:][same_edge] % F
     count, piece = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(F, F)), directed=False)
     return int(count), piece
+
+
+def long_faces(vertices: np.ndarray, faces: np.ndarray, ratio: float) -> np.ndarray:
+    """(F,) bool: faces whose longest edge is more than `ratio` times the median edge length of `faces`.
+
+    Against the whole surface's median, not a spacing local to each corner: the mean distance of a corner to
+    its 6 nearest vertices was tried, and missed most of the spans across a scanner's unseen stretches."""
+    if len(faces) == 0:
+        return np.zeros(0, bool)
+    corners = vertices[faces]
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    return edges.max(1) > ratio * np.median(edges)
 
 
 def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:

@@ -275,11 +275,46 @@ def test_surface_closes_a_large_hole_with_the_inside_tets_boundary():
 
 
 
+def test_a_stretch_the_samples_missed_is_faired_between_them():
+    """Samples of a sphere with a cap left unsampled (what a scanner did not see): the Delaunay faces across the
+    cap are a flat lid of long faces, no hole. With `spans` (the default) they are refined and faired like a lid
+    over a hole: the cap rises back towards the sphere, the surface stays watertight, and no sample moves.
+    With `spans=0` the faces stay flat."""
+    n = 1500
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    samples = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    samples = samples[samples[:, 2] < 0.75]
+    corners = 1.5 * np.array([[x, y, w] for x in (-1, 1) for y in (-1, 1) for w in (-1, 1)], float)
+    pd = wdt.PowerDiagram.from_points(np.concatenate([samples, corners]), None)
+    inside = (pd.tets < len(samples)).all(1)  # the samples' hull
+    walls = solid.boundary_mask(pd, inside)
+    mesh = trimesh.Trimesh(pd.points, pd.faces[walls], process=False)
+    flat = surface_of_mesh(mesh, pd, config=SurfaceConfig(spans=0.0))
+    assert flat.metadata["surface"]["span_faces"] == 0 and np.asarray(flat.vertices)[:, 2].max() < 0.76
+    faired = surface_of_mesh(mesh, pd)
+    info = faired.metadata["surface"]
+    assert info["span_faces"] > 0 and info["lids_faired"] and info["lid_vertices_added"] > 0
+    v = np.asarray(faired.vertices)
+    check_closed(np.asarray(faired.faces), v)
+    assert v[:, 2].max() > 0.85  # a sphere's cap, not a plane: the top of the unit sphere is 1
+    old = v[:len(v) - info["lid_vertices_added"]]
+    assert np.abs(np.linalg.norm(old, axis=1) - 1.0).max() < 1e-9  # every sample stays on the sphere
+    with pytest.raises(ValueError, match="spans"):
+        SurfaceConfig(spans=-1.0)
+
+
 @pytest.mark.parametrize("height,dropped", [(0.7, True), (1.5, False)])
-def test_a_lid_whose_fair_form_crosses_a_sheet_is_dropped(height, dropped):
+@pytest.mark.parametrize("as_span", [False, True])
+def test_a_lid_whose_fair_form_crosses_a_sheet_is_dropped(height, dropped, as_span):
     """A pressed sphere cap as the lid and a square sheet above it: faired, the cap rises towards the sphere.
     Through a sheet at z = 0.7 it would cross it, so the lid is dropped (its hole open again) and the sheet
-    kept; a sheet at z = 1.5 leaves the faired lid in place."""
+    kept; a sheet at z = 1.5 leaves the faired lid in place. The cap as a span (faces of the surface across an
+    unsampled stretch, not a lid; its corners held): a sheet tilted through it is crossed whatever the fairing
+    does, so the span leaves the fairing and its faces stay as they were (the surface stays closed); under the
+    sheet at z = 1.5 only new vertices are added and moved."""
     from dmesh.extract import Surface, _fair_lids
 
     sphere = trimesh.creation.icosphere(3)
@@ -288,16 +323,27 @@ def test_a_lid_whose_fair_form_crosses_a_sheet_is_dropped(height, dropped):
     inner = np.setdiff1d(np.unique(f[lid]), np.unique(f[~lid]))
     v[inner, 2] = 0.6
     square = np.array([[-0.5, -0.5, height], [0.5, -0.5, height], [0.5, 0.5, height], [-0.5, 0.5, height]])
+    if as_span and dropped:  # its corners held, a span barely rises: a sheet tilted through the pressed cap
+        square[:, 2] = 0.5 + 0.3 * square[:, 0]
     sheet = len(v) + np.array([[0, 1, 2], [0, 2, 3]])
     vertices = np.concatenate([v, square])
     faces = np.concatenate([f, sheet])
-    result = Surface(faces, np.arange(len(vertices)), len(f), {"lids": 1, "lid_faces": int(lid.sum())},
-                     np.r_[lid, False, False])
+    flags = np.r_[lid, False, False]
+    none = np.zeros(len(flags), bool)
+    info = {"lids": 0, "lid_faces": 0} if as_span else {"lids": 1, "lid_faces": int(lid.sum())}
+    result = Surface(faces, np.arange(len(vertices)), len(f), info, none if as_span else flags,
+                     flags if as_span else none)
     out_v, out_f = _fair_lids(vertices, faces, result, 1)
     assert result.info["lids_dropped"] == int(dropped)
     assert {cycle(t) for t in sheet.tolist()} <= {cycle(t) for t in out_f.tolist()}  # the sheet stays
     closed = out_f[~np.isin(out_f, sheet).all(1)]
-    if dropped:
+    if dropped and as_span:
+        assert np.array_equal(out_v, vertices) and np.array_equal(closed, f)
+        assert result.info["lid_faces"] == 0
+    elif as_span:
+        assert np.array_equal(out_v[:len(vertices)], vertices) and len(out_v) > len(vertices)
+        check_closed(closed, out_v)
+    elif dropped:
         assert np.array_equal(out_v, vertices) and len(closed) == (~lid).sum()
         assert result.info["lid_faces"] == 0 and repair.boundary_edge_count(closed) > 0
     else:

@@ -337,6 +337,25 @@ def test_refine_and_fair_restores_a_flattened_cap_of_a_sphere():
     assert {cycle(t) for t in f[~patch].tolist()} <= {cycle(t) for t in out_f[~out_patch].tolist()}
     mesh = check_closed(out_f, out_v)
     assert mesh.euler_number == 2
+    # `hold`: the pressed vertices stay; only the new ones move, and still towards the sphere
+    kept_v, kept_f, kept_patch, solved = native.refine_and_fair(pressed, f, patch, density=4.0, continuity=1,
+                                                                hold=np.isin(np.arange(len(v)), inner))
+    assert solved and np.array_equal(kept_v[:len(v)], pressed) and len(kept_v) > len(v)
+    new = kept_v[len(v):]
+    risen = new[:, 2] > 0.6 + 1e-9  # the new vertices over the pressed cap rise off its plane
+    assert risen.mean() > 0.5
+    check_closed(kept_f, kept_v)
+
+
+def test_long_faces_are_long_against_the_median_edge():
+    grid = trimesh.creation.box(extents=(1, 1, 1)).subdivide().subdivide()
+    v, f = np.asarray(grid.vertices, dtype=np.float64), np.asarray(grid.faces, dtype=np.int64)
+    stretched = v.copy()
+    stretched[0] = stretched[0] * 9.0  # one corner pulled far out: its faces' edges grow
+    at = np.isin(f, [0]).any(1)
+    assert repair.long_faces(v, f, 2.0).sum() == 0
+    assert np.array_equal(repair.long_faces(stretched, f, 4.0), at)
+    assert repair.long_faces(v, f[:0], 4.0).shape == (0,)
 
 
 def test_refine_and_fair_rejects_what_is_not_an_oriented_manifold():
@@ -352,6 +371,8 @@ def test_refine_and_fair_rejects_what_is_not_an_oriented_manifold():
         native.refine_and_fair(v, f, np.zeros(3, bool))
     with pytest.raises(ValueError, match="continuity"):
         native.refine_and_fair(v, f, np.zeros(len(f), bool), continuity=3)
+    with pytest.raises(ValueError, match="hold has"):
+        native.refine_and_fair(v, f, np.zeros(len(f), bool), hold=np.zeros(2, bool))
 
 
 def test_untangle_smooths_a_fold_out_of_a_patch_and_moves_nothing_else():

@@ -428,8 +428,10 @@ class _Run:
                 seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
                 towards = towards_cameras((lifted_points(vw) - self.center) * self.scale, self.eyes[seen])
                 # Directions towards the cameras are not normals: on a sheet seen from both sides they point
-                # to either side patch by patch, so sheets turn whole (dmesh.repair.orient_sheets).
-                mesh = surface_of_mesh(mesh, self.pd, towards, SurfaceConfig(seed=cfg.seed, turn_faces=False))
+                # to either side patch by patch, so sheets turn whole (dmesh.repair.orient_sheets). Long faces
+                # stay as they are (`SurfaceConfig.spans`: chosen and measured on point clouds only).
+                config = SurfaceConfig(seed=cfg.seed, turn_faces=False, spans=0.0)
+                mesh = surface_of_mesh(mesh, self.pd, towards, config)
                 info["surface"] = mesh.metadata.pop("surface")
                 if len(points) and cfg.depth_fit:
                     groups = copy_groups(mesh.vertices, points)

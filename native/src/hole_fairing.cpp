@@ -22,7 +22,7 @@ namespace PMP = CGAL::Polygon_mesh_processing;
 }  // namespace
 
 FairedMesh refine_and_fair(const real_t* vertices, index_t n_vertices, const index_t* faces, index_t n_faces,
-                           const std::uint8_t* patch, double density, int continuity) {
+                           const std::uint8_t* patch, double density, int continuity, const std::uint8_t* hold) {
   if (continuity < 0 || continuity > 2) {
     throw std::invalid_argument("refine_and_fair: continuity must be 0, 1 or 2, got " + std::to_string(continuity));
   }
@@ -56,10 +56,10 @@ FairedMesh refine_and_fair(const real_t* vertices, index_t n_vertices, const ind
       patch_faces.push_back(added);
     }
   }
-  // Vertices with only patch faces around them (and not on a border) move with the new ones.
+  // Vertices with only patch faces around them (and not on a border or held) move with the new ones.
   std::vector<VertexIndex> movable;
   for (VertexIndex v : mesh.vertices()) {
-    if (mesh.is_isolated(v) || mesh.is_border(v, false)) continue;
+    if (mesh.is_isolated(v) || mesh.is_border(v, false) || (hold != nullptr && hold[std::size_t(v)])) continue;
     bool all = true;
     for (FaceIndex f : CGAL::faces_around_target(mesh.halfedge(v), mesh)) {
       if (f == Mesh::null_face() || !in_patch[f]) {

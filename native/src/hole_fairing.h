@@ -21,9 +21,11 @@ struct FairedMesh {
 // processing::refine: new vertices until the density of the surrounding mesh, `density` its control factor)
 // and every vertex with only patch faces around it, new or not, is moved to minimise the fairing energy of
 // the given `continuity` (0: membrane, 1: thin plate, 2: minimum curvature variation; CGAL::Polygon_mesh_
-// processing::fair) with the others held. Throws std::invalid_argument for bad indices, non-finite
+// processing::fair) with the others held, and so are the input vertices marked in `hold` (V,) uint8 (nullptr:
+// none): only new vertices move around them. Throws std::invalid_argument for bad indices, non-finite
 // vertices or a face that does not fit a consistently oriented 2-manifold.
 FairedMesh refine_and_fair(const real_t* vertices, index_t n_vertices, const index_t* faces, index_t n_faces,
-                           const std::uint8_t* patch, double density, int continuity);
+                           const std::uint8_t* patch, double density, int continuity,
+                           const std::uint8_t* hold = nullptr);
 
 }  // namespace dmesh
