@@ -769,14 +769,21 @@ def crumbs(faces: np.ndarray, max_faces: int) -> np.ndarray:
 #: edge lengths from every vertex of a larger piece (`floating_crumbs`): a triangle among stray points, where a
 #: part of a thin sheet that did not join up lies within an edge or two of it.
 FLOATING = 4.0
+#: ... unless it lies in the plane of the surface beside it, off that plane by at most this share of its distance
+#: from it: a fragment of the same surface lies in that plane, a triangle among stray points above the surface
+#: lies off it by about its whole distance.
+FLOATING_BESIDE = 0.05
 
 
 def floating_crumbs(vertices: np.ndarray, faces: np.ndarray, max_faces: int, others: np.ndarray | None = None,
                     gap: float | None = None) -> np.ndarray:
     """(F,) bool: the faces of the crumbs (edge-connected pieces of at most `max_faces` faces) of `faces` that
     float apart: none of their vertices within `gap` median edge lengths of a vertex of a larger piece or of
-    `others` ((., 3) int, e.g. the closed part; `gap` None: `FLOATING`). When every piece is a crumb, none
-    (`crumbs` decides those)."""
+    `others` ((., 3) int, e.g. the closed part; `gap` None: `FLOATING`), and not lying beside that surface in its
+    plane (a crumb whose centre is within `FLOATING_BESIDE` of its distance off the plane of the
+    `STRAY_NEIGHBOURS` nearest such vertices, where they lie flat: a fragment of a sparsely sampled stretch, as a
+    scanner leaves at grazing angles, not a triangle among stray points above it). When every piece is a crumb,
+    none (`crumbs` decides those)."""
     from scipy.spatial import cKDTree
 
     gap = FLOATING if gap is None else float(gap)
@@ -792,10 +799,23 @@ def floating_crumbs(vertices: np.ndarray, faces: np.ndarray, max_faces: int, oth
     anchors = np.unique(large if others is None or not len(others) else np.concatenate([large, others]))
     he = _half_edges(large)
     spacing = float(np.median(np.linalg.norm(v[he[:, 1]] - v[he[:, 0]], axis=1)))
-    near = cKDTree(v[anchors]).query(v[f[small]].reshape(-1, 3))[0].reshape(-1, 3).min(1)
+    tree = cKDTree(v[anchors])
+    near = tree.query(v[f[small]].reshape(-1, 3))[0].reshape(-1, 3).min(1)
     piece_near = np.full(int(comp.max()) + 1, np.inf)
     np.minimum.at(piece_near, comp[small], near)
-    return small & (piece_near[comp] > gap * spacing)
+    far = small & (piece_near[comp] > gap * spacing)
+    if far.any() and len(anchors) >= STRAY_NEIGHBOURS:
+        pieces, at = np.unique(comp[far], return_inverse=True)
+        centre = np.zeros((len(pieces), 3))
+        np.add.at(centre, at, v[f[far]].mean(1))
+        centre /= np.bincount(at, minlength=len(pieces))[:, None]
+        distance, neighbours = tree.query(centre, k=STRAY_NEIGHBOURS)
+        points = np.concatenate([v[anchors], centre])
+        variation, off = plane_offsets(points, np.arange(len(anchors), len(points)), neighbours)
+        beside = np.zeros(int(comp.max()) + 1, bool)
+        beside[pieces] = (variation < SURFACE_VARIATION) & (off <= FLOATING_BESIDE * distance[:, 0])
+        far &= ~beside[comp]
+    return far
 
 
 #: Largest piece (faces) that `stacked_pieces` tests: stray copies are a few faces each; a larger piece near

@@ -480,21 +480,27 @@ def test_sheet_holes_beside_a_stray_vertex_stay_open():
     assert [len(loop) for loop in repair.sheet_holes(folded, sheet, 8)] == [6]
 
 
-def test_floating_crumbs_are_small_pieces_far_from_every_larger_one():
+def test_floating_crumbs_are_small_pieces_far_from_every_larger_one(monkeypatch):
     """Beside a real sheet, a crumb within an edge or two of it stays (a thin part that did not join up); one
-    several edge lengths from every larger piece and from `others` is a triangle among stray points."""
+    several edge lengths from every larger piece and from `others`, off the plane of the surface nearest it, is a
+    triangle among stray points; one as far but in that plane is a fragment of the surface (a scanner's sparse
+    stretch) and stays."""
     v, f = _grid(12)                                      # unit edges; median edge length 1
     tri = np.array([[0.0, 0.0, 0.0], [0.8, 0.0, 0.0], [0.0, 0.8, 0.0]])
     near = tri + [12.0, 5.0, 0.0]                         # 1 unit past the grid's rim
     far = tri + [5.0, 5.0, 9.0]                           # 9 units above it
-    by_others = tri + [30.0, 0.0, 0.0]                    # far from the grid, beside `others`
-    w = np.concatenate([v, near, far, by_others, by_others[:1] + [0.0, 0.0, 1.0]])
+    by_others = tri + [30.0, 0.0, 3.0]                    # far from the grid and off its plane, beside `others`
+    in_plane = tri + [20.0, 5.0, 0.0]                     # 9 units past the rim, in the grid's plane
+    tilted = in_plane + [0.0, 0.0, 2.0]                   # as far, 2 units off that plane
+    w = np.concatenate([v, near, far, by_others, in_plane, tilted, by_others[:1] + [0.0, 0.0, 1.0]])
     n = len(v)
-    faces = np.concatenate([f, [[n, n + 1, n + 2], [n + 3, n + 4, n + 5], [n + 6, n + 7, n + 8]]])
-    others = np.array([[n + 9, n + 9, n + 9]])
+    faces = np.concatenate([f, n + np.arange(15).reshape(5, 3)])
+    others = np.array([[n + 15, n + 15, n + 15]])
     flag = repair.floating_crumbs(w, faces, 4, others)
     assert not flag[: len(f)].any()
-    assert flag[len(f):].tolist() == [False, True, False]
-    assert repair.floating_crumbs(w, faces, 4).tolist()[len(f):] == [False, True, True]
+    assert flag[len(f):].tolist() == [False, True, False, False, True]
+    assert repair.floating_crumbs(w, faces, 4).tolist()[len(f):] == [False, True, True, False, True]
+    monkeypatch.setattr(repair, "FLOATING_BESIDE", -1.0)  # no crumb counts as beside: the fragment goes too
+    assert repair.floating_crumbs(w, faces, 4).tolist()[len(f):] == [False, True, True, True, True]
     assert not repair.floating_crumbs(w, faces, 4, gap=20.0).any()
     assert not repair.floating_crumbs(w, faces[len(f):], 4).any()  # only crumbs: `crumbs` decides

@@ -10,8 +10,9 @@ never a piece's longest loop (its rim) nor one whose area is over a quarter of i
 (`dmesh.repair.sheet_holes`, filled like the closed part's holes by `dmesh.repair.fill_holes`), unless a vertex
 of its loop lies off the surface its neighbouring vertices form (`dmesh.repair.STRAY_OFF`: an outlier the mesh
 reached; `sheet holes beside strays too` fills those as well, as the first version did). A piece of at most 4
-faces floating more than `dmesh.repair.FLOATING` median edge lengths from every larger piece is dropped
-(`dmesh.repair.floating_crumbs`; `floating crumbs kept`: as before it).
+faces floating more than `dmesh.repair.FLOATING` median edge lengths from every larger piece is dropped unless it
+lies in the plane of the surface nearest it (`dmesh.repair.floating_crumbs`, `FLOATING_BESIDE`; `floating crumbs
+kept`: as before the test).
 
 One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper`'s cache: 100K points of each
 shape; `noise`: Gaussian noise of that fraction of the radius; `scan`: the 6-camera scan with estimated normals;
