@@ -19,29 +19,29 @@ Modes, from upstream's to ours:
   edges; "no_interior" 0.251; "sheet" 0.201 with no non-manifold or boundary edge (the smaller sheet: 0.299).
   Clusters are small there (median 2 tets, largest 24), so one normal per cluster is enough.
 
-The output surface (`surface`, `extract(..., orient=True)`): the faces alone carry no orientation and, at
-a hole or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets
-are labelled inside or outside by walks to the hull, and the mesh faces between an inside and an outside
-tet form the closed part, wound outward (open sheets that fooled the walks are set aside and the walks
-repeated: `dmesh.solid.open_sheet_walls`); its small holes are filled over their own vertices, larger ones
-(parts of a closed surface the input did not sample, e.g. what a scanner did not see) are closed by the
-inside tets' own boundary across them, refined and faired (`dmesh.solid.large_lids`, `_fair_lids`); where the
-walls themselves span such a stretch (faces of the triangulation between samples on either side of it, far
-longer than the surface's median edge: `dmesh.repair.long_faces`), those faces are refined and faired the
-same way, their corners (samples) held. Pinches are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
-sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they
-do not share an edge with the closed part, wound consistently and facing the input normals when given.
-Small sheet pieces lying over a larger piece or the closed part (noise leaves them in the surface's band) are
-dropped (`dmesh.repair.stacked_pieces`), and so are those floating apart from every larger piece and off the
-plane of the surface nearest them (triangles among stray points: `dmesh.repair.floating_crumbs`), and a sheet's small inner holes are filled
-(`dmesh.repair.sheet_holes`), not its rim, nor a hole beside a vertex off the surface its neighbours form (an
-outlier the mesh reached: the fill would be a tent up to it). Where sheets meet at an edge (three or more faces on it) or at a vertex (or a pinch the relabelling left),
-each gets its own copy of the vertices, moved a little into its own faces (`dmesh.repair.split_fans`,
-`dmesh.repair.separate_copies`): the surface no longer touches itself there, so a merge of vertices by
-position (STL, trimesh's default load) does not join the copies again, and no face is dropped (keeping only
-the flattest pair of faces at such an edge was tried; it cost accuracy on coarse meshes: README). Where the
-input samples a closed surface the result is watertight and 2-manifold; the figures per shape:
-`python -m eval.bench quality` (reports/bench_quality.md).
+The output surface (`surface`, `extract(..., orient=True)`): the faces alone carry no orientation and, at a hole
+or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets are labelled
+inside or outside by walks to the hull, and the mesh faces between an inside and an outside tet form the closed
+part, wound outward (open sheets that fooled the walks are set aside and the walks repeated:
+`dmesh.solid.open_sheet_walls`); its small holes are filled over their own vertices, larger ones (parts of a
+closed surface the input did not sample, e.g. what a scanner did not see) are closed by the inside tets' own
+boundary across them, refined and faired (`dmesh.solid.large_lids`, `_fair_lids`); where the walls themselves span
+such a stretch (faces of the triangulation between samples on either side of it, far longer than the surface's
+median edge: `dmesh.repair.long_faces`), those faces are refined and faired the same way, their corners (samples)
+held. Pinches are removed by relabelling tets (`dmesh.repair`). The remaining mesh faces (both sides outside: open
+sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they do not
+share an edge with the closed part, wound consistently and facing the input normals when given. Small sheet pieces
+lying over a larger piece or the closed part (noise leaves them in the surface's band) are dropped
+(`dmesh.repair.stacked_pieces`), and so are those floating apart from every larger piece and off the plane of the
+surface nearest them (triangles among stray points: `dmesh.repair.floating_crumbs`), and a sheet's small inner
+holes are filled (`dmesh.repair.sheet_holes`), not its rim, nor a hole beside a vertex off the surface its
+neighbours form (an outlier the mesh reached: the fill would be a tent up to it). Where sheets meet at an edge
+(three or more faces on it) or at a vertex (or a pinch the relabelling left), each gets its own copy of the
+vertices, moved a little into its own faces (`dmesh.repair.split_fans`, `dmesh.repair.separate_copies`): the
+surface no longer touches itself there, so a merge of vertices by position (STL, trimesh's default load) does not
+join the copies again, and no face is dropped (keeping only the flattest pair of faces at such an edge was tried;
+it cost accuracy on coarse meshes: README). Where the input samples a closed surface the result is watertight and
+2-manifold; the figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
 
 Multi-view filters (`filtered_faces`, `extract_filtered`; the interior rules of
 `dmesh.recon.multiview_config.INTERIOR_MODES`): "apex" is "no_interior" (a face whose two tets have a real apex is
@@ -214,8 +214,8 @@ class Surface:
             vertex per sheet: `dmesh.repair.split_fans`; `_surface_mesh` moves them apart).
         closed: number of closed-part rows.
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
-            tets_flipped, closed_faces, lids, lid_faces, span_faces, holes_filled, hole_faces, holes_left (holes_crossing
-            of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
+            tets_flipped, closed_faces, lids, lid_faces, span_faces, holes_filled, hole_faces, holes_left
+            (holes_crossing of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
             stacked_dropped, sheet_holes_filled, sheet_hole_faces, seams_cut,
             split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
         lid: (K,) bool, the faces of the lids over large holes of the closed part (`SurfaceConfig.lids`).
