@@ -736,10 +736,8 @@ def edge_pieces(faces: np.ndarray, manifold: bool = False) -> tuple[int, np.ndar
 
 
 def long_faces(vertices: np.ndarray, faces: np.ndarray, ratio: float) -> np.ndarray:
-    """(F,) bool: faces whose longest edge is more than `ratio` times the median edge length of `faces`.
-
-    Against the whole surface's median, not a spacing local to each corner: the mean distance of a corner to
-    its 6 nearest vertices was tried, and missed most of the spans across a scanner's unseen stretches."""
+    """(F,) bool: faces whose longest edge is more than `ratio` times the median edge length of `faces` (the
+    whole surface's median: a spacing local to each corner misses spans whose rim is sparsely sampled too)."""
     if len(faces) == 0:
         return np.zeros(0, bool)
     corners = vertices[faces]
