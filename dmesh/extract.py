@@ -32,8 +32,9 @@ held. Pinches are removed by relabelling tets (`dmesh.repair`). The remaining me
 sheets; both inside: membranes inside a solid, e.g. where two sampled solids overlap) are kept where they do not
 share an edge with the closed part, wound consistently and facing the input normals when given. Small sheet pieces
 lying over a larger piece or the closed part (noise leaves them in the surface's band) are dropped
-(`dmesh.repair.stacked_pieces`), and so are those floating apart from every larger piece and off the plane of the
-surface nearest them (triangles among stray points: `dmesh.repair.floating_crumbs`), and a sheet's small inner
+(`dmesh.repair.stacked_pieces`), and so are those floating apart from every larger piece, off the plane of the
+surface nearest them and, beyond a crumb's size, farther from it than their own extent (triangles among stray
+points: `dmesh.repair.floating_crumbs`), and a sheet's small inner
 holes are filled (`dmesh.repair.sheet_holes`), not its rim, nor a hole beside a vertex off the surface its
 neighbours form (an outlier the mesh reached: the fill would be a tent up to it). Where sheets meet at an edge
 (three or more faces on it) or at a vertex (or a pinch the relabelling left), each gets its own copy of the

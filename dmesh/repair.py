@@ -771,17 +771,26 @@ FLOATING = 4.0
 #: from it: a fragment of the same surface lies in that plane, a triangle among stray points above the surface
 #: lies off it by about its whole distance.
 FLOATING_BESIDE = 0.05
+#: Pieces larger than a crumb, up to this many faces, float apart when they also lie farther from every larger
+#: piece than their own extent: stray points far off the surface join into pieces of a few long-edged faces,
+#: while the fragments a scanner leaves of a sparsely seen stretch lie among each other, closer than their size.
+FLOATING_MAX_FACES = 64
 
 
 def floating_crumbs(vertices: np.ndarray, faces: np.ndarray, max_faces: int, others: np.ndarray | None = None,
                     gap: float | None = None) -> np.ndarray:
-    """(F,) bool: the faces of the crumbs (edge-connected pieces of at most `max_faces` faces) of `faces` that
-    float apart: none of their vertices within `gap` median edge lengths of a vertex of a larger piece or of
-    `others` ((., 3) int, e.g. the closed part; `gap` None: `FLOATING`), and not lying beside that surface in its
-    plane (a crumb whose centre is within `FLOATING_BESIDE` of its distance off the plane of the
-    `STRAY_NEIGHBOURS` nearest such vertices, where they lie flat: a fragment of a sparsely sampled stretch, as a
-    scanner leaves at grazing angles, not a triangle among stray points above it). When every piece is a crumb,
-    none (`crumbs` decides those)."""
+    """(F,) bool: the faces of the small edge-connected pieces of `faces` that float apart from the surface.
+
+    A crumb (a piece of at most `max_faces` faces) floats apart when none of its vertices lies within `gap`
+    median edge lengths (None: `FLOATING`) of a vertex of a piece of more than `max_faces` faces kept here or of
+    `others` ((., 3) int, e.g. the closed part), and it does not lie beside that surface in its plane (its centre
+    within `FLOATING_BESIDE` of its distance off the plane of the `STRAY_NEIGHBOURS` nearest such vertices, where
+    they lie flat: a fragment of a sparsely sampled stretch, as a scanner leaves at grazing angles, not a triangle
+    among stray points above it). A larger piece, of up to `FLOATING_MAX_FACES` faces, floats apart on the same
+    test against the kept pieces larger than itself, when it also lies farther from them than the diagonal of its
+    bounding box. Pieces are decided largest first, so a piece near only dropped ones is dropped too. When every
+    piece is a crumb, none (`crumbs` decides those).
+    """
     from scipy.spatial import cKDTree
 
     gap = FLOATING if gap is None else float(gap)
@@ -789,30 +798,65 @@ def floating_crumbs(vertices: np.ndarray, faces: np.ndarray, max_faces: int, oth
     if len(f) == 0 or max_faces < 1:
         return np.zeros(len(f), bool)
     _, comp = edge_pieces(f)
-    small = np.bincount(comp)[comp] <= max_faces
-    if not small.any() or small.all():
+    size = np.bincount(comp)
+    if size.max() <= max_faces:
         return np.zeros(len(f), bool)
     v = np.asarray(vertices, dtype=np.float64)
-    large = f[~small]
-    anchors = np.unique(large if others is None or not len(others) else np.concatenate([large, others]))
-    he = _half_edges(large)
+    he = _half_edges(f[size[comp] > max_faces])
     spacing = float(np.median(np.linalg.norm(v[he[:, 1]] - v[he[:, 0]], axis=1)))
-    tree = cKDTree(v[anchors])
-    near = tree.query(v[f[small]].reshape(-1, 3))[0].reshape(-1, 3).min(1)
-    piece_near = np.full(int(comp.max()) + 1, np.inf)
-    np.minimum.at(piece_near, comp[small], near)
-    far = small & (piece_near[comp] > gap * spacing)
+    limit = max(max_faces, FLOATING_MAX_FACES)
+    base = f[size[comp] > limit]
+    if others is not None and len(others):
+        base = np.concatenate([base, np.asarray(others, dtype=np.int64).reshape(-1, 3)])
+    base_tree = cKDTree(v[np.unique(base)]) if len(base) else None
+    by_piece = np.argsort(comp, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(size)])
+    dropped = np.zeros(len(size), bool)
+    kept = []  # vertices of the tested pieces kept so far, which anchor the smaller ones
+    # Larger pieces one size at a time (each against the kept larger ones), then all crumbs together.
+    mid = np.flatnonzero((size > max_faces) & (size <= limit))
+    groups = [mid[size[mid] == s] for s in np.unique(size[mid])[::-1]]
+    for pieces in groups + [np.flatnonzero(size <= max_faces)]:
+        if not len(pieces):
+            continue
+        faces_of = [f[by_piece[starts[p]:starts[p + 1]]] for p in pieces]
+        dropped[pieces] = _float_apart(v, faces_of, base_tree, np.unique(np.concatenate(kept)) if kept else None,
+                                       gap * spacing, size[pieces[0]] > max_faces)
+        kept += [piece.ravel() for piece, out in zip(faces_of, dropped[pieces]) if not out]
+    return dropped[comp]
+
+
+def _float_apart(v: np.ndarray, pieces: list, base_tree, extra: np.ndarray | None, gap: float,
+                 beyond_extent: bool) -> np.ndarray:
+    """(len(pieces),) bool: `floating_crumbs`' test of each piece ((n, 3) faces) against the anchors: the
+    points of `base_tree` and the vertices `extra` (indices)."""
+    from scipy.spatial import cKDTree
+
+    trees = [t for t in (base_tree, cKDTree(v[extra]) if extra is not None and len(extra) else None)
+             if t is not None]
+    if not trees:
+        return np.zeros(len(pieces), bool)
+    anchors = np.concatenate([t.data for t in trees])
+    corners = [np.unique(p) for p in pieces]
+    flat = v[np.concatenate(corners)]
+    near = np.min([t.query(flat)[0] for t in trees], axis=0)
+    near = np.minimum.reduceat(near, np.cumsum([0] + [len(c) for c in corners[:-1]]))
+    far = near > gap
+    if beyond_extent:
+        far &= near > np.array([np.linalg.norm(v[c].max(0) - v[c].min(0)) for c in corners])
     if far.any() and len(anchors) >= STRAY_NEIGHBOURS:
-        pieces, at = np.unique(comp[far], return_inverse=True)
-        centre = np.zeros((len(pieces), 3))
-        np.add.at(centre, at, v[f[far]].mean(1))
-        centre /= np.bincount(at, minlength=len(pieces))[:, None]
-        distance, neighbours = tree.query(centre, k=STRAY_NEIGHBOURS)
-        points = np.concatenate([v[anchors], centre])
+        at = np.flatnonzero(far)
+        centre = np.array([v[pieces[i]].mean(1).mean(0) for i in at])
+        # The nearest anchors of each centre over both trees: each tree's own nearest, merged.
+        found = [t.query(centre, k=min(STRAY_NEIGHBOURS, t.n)) for t in trees]
+        distance = np.concatenate([d.reshape(len(at), -1) for d, _ in found], axis=1)
+        offset = np.cumsum([0] + [t.n for t in trees[:-1]])
+        index = np.concatenate([i.reshape(len(at), -1) + o for (_, i), o in zip(found, offset)], axis=1)
+        order = np.argsort(distance, axis=1, kind="stable")[:, :STRAY_NEIGHBOURS]
+        distance, neighbours = np.take_along_axis(distance, order, 1), np.take_along_axis(index, order, 1)
+        points = np.concatenate([anchors, centre])
         variation, off = plane_offsets(points, np.arange(len(anchors), len(points)), neighbours)
-        beside = np.zeros(int(comp.max()) + 1, bool)
-        beside[pieces] = (variation < SURFACE_VARIATION) & (off <= FLOATING_BESIDE * distance[:, 0])
-        far &= ~beside[comp]
+        far[at] = ~((variation < SURFACE_VARIATION) & (off <= FLOATING_BESIDE * distance[:, 0]))
     return far
 
 

@@ -504,3 +504,23 @@ def test_floating_crumbs_are_small_pieces_far_from_every_larger_one(monkeypatch)
     assert repair.floating_crumbs(w, faces, 4).tolist()[len(f):] == [False, True, True, True, True]
     assert not repair.floating_crumbs(w, faces, 4, gap=20.0).any()
     assert not repair.floating_crumbs(w, faces[len(f):], 4).any()  # only crumbs: `crumbs` decides
+
+
+def test_larger_pieces_float_apart_when_farther_than_their_extent(monkeypatch):
+    """Stray points far off a surface join into pieces of a few long faces: one farther from every larger piece
+    than its own extent goes, and the crumb beside it with it (pieces are decided largest first); a piece as
+    far but larger than its distance (a fragment of a sparsely seen stretch) stays."""
+    v, f = _grid(12)                                      # unit edges, 242 faces
+    s, sf = _grid(3)                                      # 8 faces, bounding-box diagonal 2.8
+    tri = np.array([[0.0, 0.0, 0.0], [0.8, 0.0, 0.0], [0.0, 0.8, 0.0]])
+    parts = [(v, f), (s + [4.0, 4.0, 9.0], sf), (s * 4.0 + [0.0, 0.0, -9.0], sf),
+             (tri + [7.0, 4.0, 9.0], np.array([[0, 1, 2]]))]  # 9 above the grid, 1 beside the small piece
+    w = np.concatenate([p for p, _ in parts])
+    start = np.cumsum([0] + [len(p) for p, _ in parts])
+    faces = np.concatenate([q + o for (_, q), o in zip(parts, start)])
+    piece = np.repeat(np.arange(4), [len(q) for _, q in parts])
+    flag = repair.floating_crumbs(w, faces, 4)
+    assert [bool(flag[piece == i].all()) for i in range(4)] == [False, True, False, True]
+    assert all(flag[piece == i].all() or not flag[piece == i].any() for i in range(4))
+    monkeypatch.setattr(repair, "FLOATING_MAX_FACES", 0)   # crumbs only: the small piece anchors the crumb
+    assert not repair.floating_crumbs(w, faces, 4).any()
