@@ -13,11 +13,9 @@ Modes, from upstream's to ours:
   boundary, which is two sheets (one facing each side of the surface), only one is kept: the one with the
   larger area, which on a convex patch is the one closer to the surface. A side is told by the apex of the
   tet across each boundary face, against the cluster's normal (its points' direction of least variance).
-  Upstream keeps both sheets, so its meshes have many non-manifold edges (e.g. 42K on a torus from 40K
-  samples), and the inner sheet lies farther from the surface. Measured on that torus (point-to-surface CD
-  x1e-3, first mesh of `seeds_and_voronoi(..., vertices="poles")`): "all" 0.283 with 42634 non-manifold
-  edges; "no_interior" 0.251; "sheet" 0.201 with no non-manifold or boundary edge (the smaller sheet: 0.299).
-  Clusters are small there (median 2 tets, largest 24), so one normal per cluster is enough.
+  Upstream keeps both sheets, so its meshes have many non-manifold edges, and the inner sheet lies farther
+  from the surface. Clusters are small (tens of tets at most), so one normal per cluster is enough. The three
+  modes on a first DMesh (faces, non-manifold edges, CD, cluster sizes): `python -m eval.bench extraction_modes`.
 
 The output surface (`surface`, `extract(..., orient=True)`): the faces alone carry no orientation and, at a hole
 or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets are labelled
