@@ -413,8 +413,10 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
 
     Returns:
         {"status": "done", "metrics", "timings", "info", "peak_memory_mb", "mesh_path"} or
-        {"status": "failed", "error": one line}.
+        {"status": "failed", "error": one line}; a failed run whose method returned (an empty mesh, NaN
+        vertices) also keeps the method's "timings" and "info", so the store says how far it got.
     """
+    told: dict = {}  # what a method that returned said of its run, kept on a failed outcome too
     try:
         method = method if method is not None else get_method(spec.method)
         changed = sources_changed(method, spec.code_version)
@@ -431,6 +433,9 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
             result = method.reconstruct(inputs, config)
             cpu_s = time.process_time() - cpu0
         drop_checkpoint(work, spec.key)
+        told = {"timings": {k: float(v) for k, v in dict(result.timings).items()},
+                "info": {**_jsonable(dict(result.info or {})), "worker_threads": _threads(),  # the timings' budget
+                         "method_cpu_s": cpu_s}}  # CPU seconds of the worker (all threads) in the method
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
             raise ValueError("the method returned an empty mesh")
@@ -440,18 +445,14 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         write_mesh(mesh, out)
         metrics = score(mesh, gt, spec.inputs, result.info)
         _warn_post_step_damage(spec, result.info, metrics)
-        timings = {k: float(v) for k, v in dict(result.timings).items()}
-        if "total" not in timings:
+        if "total" not in told["timings"]:
             raise ValueError("the method's timings lack 'total'")
-        info = {**_jsonable(dict(result.info or {})), "worker_threads": _threads(),  # the timings' budget
-                "method_cpu_s": cpu_s}  # CPU seconds of the worker (all threads) in the method
-        return {"status": "done", "metrics": dict(metrics), "timings": timings,
-                "info": info, "peak_memory_mb": float(result.peak_memory_mb),
+        return {"status": "done", "metrics": dict(metrics), **told, "peak_memory_mb": float(result.peak_memory_mb),
                 "mesh_path": str(out), "code_deps": None if resumed else _code_deps(method, spec, executed)}
     except Exception as exc:  # noqa: BLE001 - every failure of a run is a result (stored as failed)
         log.debug("run %s failed:\n%s", spec.key, traceback.format_exc())
         drop_checkpoint(work, spec.key)  # a failing run starts over when retried
-        return {"status": "failed", "error": one_line(exc)}
+        return {"status": "failed", "error": one_line(exc), **told}
 
 
 def _code_deps(method, spec: RunSpec, executed) -> dict | None:
@@ -862,7 +863,8 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
                                       peak_memory_mb=outcome.get("peak_memory_mb"), mesh_path=mesh_path, lease=lease,
                                       code_deps=outcome.get("code_deps"))
             else:
-                stored = store.finish(spec.key, status="failed", error=outcome["error"], lease=lease)
+                stored = store.finish(spec.key, status="failed", error=outcome["error"], lease=lease,
+                                      timings=outcome.get("timings"), info=outcome.get("info"))
                 if stored:
                     log.warning("%s on %s (%s, seed %d) failed: %s", spec.method, spec.shape.id, spec.input_kind,
                                 spec.seed, outcome["error"])

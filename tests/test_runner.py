@@ -31,7 +31,8 @@ from baselines.base import Method
 
 
 class FakeHull(Method):
-    """Test-only fake: the convex hull of the input points, after `delay` seconds; raises if `fail`;
+    """Test-only fake: the convex hull of the input points, after `delay` seconds; raises if `fail`; returns an
+    empty mesh if `empty`;
     appends its seed to the file `counter` on every call; exits the process hard if `crash`. With `save` it
     writes its checkpoint (`inputs.checkpoint`) first, or resumes an existing one (info "resumed", 5 s of
     earlier attempts); with `crash_fresh` it exits hard unless it resumed."""
@@ -40,7 +41,8 @@ class FakeHull(Method):
     input_kind = "pointcloud"
 
     def default_config(self):
-        return {"delay": 0.0, "fail": False, "crash": False, "counter": "", "save": False, "crash_fresh": False}
+        return {"delay": 0.0, "fail": False, "crash": False, "counter": "", "save": False, "crash_fresh": False,
+                "empty": False}
 
     def _run(self, inputs, cfg, sw):
         import trimesh
@@ -64,6 +66,8 @@ class FakeHull(Method):
             os._exit(3)
         if cfg["fail"]:
             raise RuntimeError("fake failure: boom")
+        if cfg["empty"]:
+            return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), {"steps": 1, "reals_left": 0}
         with sw.stage("hull"):
             mesh = trimesh.convex.convex_hull(np.asarray(inputs.points, np.float64))
         import torch
@@ -304,6 +308,23 @@ def test_failing_run_is_recorded_and_the_sweep_goes_on(fake, tmp_path):
     # Failed runs are results too: not retried unless asked.
     assert run_sweep(sweep, runner).skipped == 2
     assert run_sweep(sweep, RunnerConfig(work=str(tmp_path / "work"), retry_failed=True)).failed == 1
+
+
+def test_a_run_whose_method_returned_an_empty_mesh_fails_with_what_the_method_said(fake, tmp_path):
+    """A method that returned (here an empty mesh) leaves its info and timings on the failed row, so the store
+    says how far it got; a method that raised has none."""
+    from eval.runner import RunnerConfig, run_sweep
+
+    sweep = small_sweep(methods=("fake_fail", "fake_hull"), configs={"fake_hull": [{"empty": True}]})
+    runner = RunnerConfig(work=str(tmp_path / "work"))
+    assert run_sweep(sweep, runner).failed == 2
+    with Store(runner.db_path) as store:
+        by = {r["method"]: r for r in store.rows()}
+    empty, raised = by["fake_hull"], by["fake_fail"]
+    assert empty["error"] == "ValueError: the method returned an empty mesh" and empty["mesh_path"] is None
+    assert empty["info_json"]["reals_left"] == 0 and empty["info_json"]["method_cpu_s"] >= 0
+    assert "total" in empty["timings_json"] and empty["metrics_json"] is None
+    assert not raised["info_json"] and not raised["timings_json"]
 
 
 def test_a_run_whose_method_sources_changed_since_planning_fails_with_the_reason(fake, tmp_path):
