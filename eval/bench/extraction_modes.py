@@ -26,20 +26,19 @@ MODES = ("all", "no_interior", "sheet")
 
 
 def _blocks(pd, real: np.ndarray) -> tuple[int, int]:
-    """(all-real tets, tets in the largest block of them joined across shared faces)."""
+    """(all-real tets, tets in the largest block of them): blocks joined across shared faces, as
+    `dmesh.extract._one_sheet` clusters them (its labels are internal to it)."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
-    tets = np.asarray(pd.tets)
-    solid = real[tets].all(1)
+    solid = real[np.asarray(pd.tets)].all(1)
     if not solid.any():
         return 0, 0
-    nb = np.asarray(pd.neighbors)
-    rows = np.repeat(np.arange(len(tets)), 4)
-    cols = nb.reshape(-1)
-    both = (cols >= 0) & solid[rows] & solid[np.maximum(cols, 0)]
-    graph = sp.coo_matrix((np.ones(both.sum()), (rows[both], cols[both])), shape=(len(tets), len(tets)))
-    _, label = connected_components(graph, directed=False)
+    ft = np.asarray(pd.face_tets, np.int64)
+    both = (ft[:, 1] >= 0) & solid[ft[:, 0]] & solid[np.maximum(ft[:, 1], 0)]
+    T = len(solid)
+    _, label = connected_components(sp.coo_matrix((np.ones(both.sum()), (ft[both, 0], ft[both, 1])), shape=(T, T)),
+                                    directed=False)
     return int(solid.sum()), int(np.bincount(label[solid]).max())
 
 
