@@ -216,7 +216,9 @@ class Surface:
             tets_flipped, closed_faces, lids, lid_faces, span_faces, holes_filled, hole_faces, holes_left
             (holes_crossing of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
             stacked_dropped, sheet_holes_filled, sheet_hole_faces, seams_cut,
-            split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding").
+            split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding"); rim_edges and rim_faces:
+            `dmesh.repair.rim_edge_count` and the faces of the surface before its sheets' clean-up (stacked
+            pieces, sheet holes), after fins and crumbs are dropped.
         lid: (K,) bool, the faces of the lids over large holes of the closed part (`SurfaceConfig.lids`).
         span: (K,) bool, the closed part's faces across a stretch the input did not sample
             (`SurfaceConfig.spans`), faired with the lids.
@@ -292,6 +294,10 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         if len(closed) and len(sheet) <= cfg.max_debris * (len(sheet) + len(closed)):
             crumbs[:] = True  # a few stray faces beside a closed surface: the input sampled a closed one
         sheet = sheet[~crumbs]
+        # Before the sheet clean-up below hides it: how ragged the surface came out (the point-cloud `fast`
+        # preset's test for a mesh in shreds, `redo_fragmented`, reads it).
+        info.update(rim_edges=repair.rim_edge_count(np.concatenate([closed, sheet])),
+                    rim_faces=int(len(closed) + len(sheet)))
         stacked = repair.stacked_pieces(points, sheet, closed, cfg.stacked)
         # A piece hanging on an edge of a sheet keeps that edge apart (`split_fans` below); without the piece,
         # the two faces left would join there, and where the sheet folds over itself they would join in a

@@ -80,6 +80,14 @@ def boundary_edge_count(faces: np.ndarray) -> int:
     return int((edge_table(faces)[2] == 1).sum())
 
 
+def rim_edge_count(faces: np.ndarray) -> int:
+    """Boundary edges once every edge with more than two faces is split apart: edges with exactly one face,
+    plus one per face on each edge with more than two (`split_fans` gives sheets meeting at an edge their own
+    copies of it, each a rim there)."""
+    counts = edge_table(faces)[2]
+    return int((counts == 1).sum() + counts[counts > 2].sum())
+
+
 def corner_fans(faces: np.ndarray, cut: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fans of corners: (3F,) vertex of each corner (corner j * F + i is vertex j of face i) and (3F,) fan id.
 

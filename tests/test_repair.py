@@ -10,6 +10,17 @@ from dmesh import repair
 from common import check_closed, cycle
 
 
+def test_rim_edges_count_each_face_of_an_edge_shared_by_more_than_two():
+    """`rim_edge_count`: a closed tetrahedron has none; two triangles on an edge have their 4 outer edges;
+    three triangles on one edge have 6 outer edges plus 3 for the shared one (split apart, each face keeps a
+    rim there), where `boundary_edge_count` sees only the 6."""
+    tet = np.array([[0, 1, 2], [0, 3, 1], [1, 3, 2], [0, 2, 3]])
+    pair = np.array([[0, 1, 2], [1, 0, 3]])
+    fan = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    assert [repair.rim_edge_count(f) for f in (tet, pair, fan)] == [0, 4, 9]
+    assert repair.boundary_edge_count(fan) == 6
+
+
 def test_fill_holes_restores_a_box():
     box = trimesh.creation.box()
     for drop in ([0], [0, 1]):  # a triangle hole and a square one

@@ -31,7 +31,8 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    `orient`, their closed, outward surface (`dmesh.extract.surface`: tets inside / outside, small holes
    filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
 5. With `redo_fragmented` > 0 and `auto_smooth_k` > 0 (not upstream; the `fast` preset): a run that did not
-   smooth its input and whose mesh has more than `redo_fragmented` boundary edges per face and more than
+   smooth its input and whose mesh (its surface before the sheets' clean-up: `_rim`) has more than
+   `redo_fragmented` boundary edges per face and more than
    `FRAGMENTED_RIM` times the square root of its face count (noise that `noise_ratio` missed: the mesh is in
    shreds; a small intact mesh has many boundary edges per face but few per root face) is done again with the input smoothed (`auto_smooth_k`
    neighbours, `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
@@ -329,14 +330,13 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         raise ValueError("tangent_weight < 1 needs normals")
     result = _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe)
     if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0:
-        faces = np.asarray(result.mesh.faces)
-        boundary = boundary_edge_count(faces)
-        per_face = boundary / max(len(faces), 1)
-        if per_face > cfg.redo_fragmented and boundary > FRAGMENTED_RIM * np.sqrt(len(faces)):
+        boundary, count = _rim(result)
+        per_face = boundary / max(count, 1)
+        if per_face > cfg.redo_fragmented and boundary > FRAGMENTED_RIM * np.sqrt(count):
             log.warning("the mesh came out in shreds (%.2f boundary edges per face; over %.2f): the input is "
                         "noisier than it measured (%.3f), making it again from the smoothed input (%d neighbours)",
                         per_face, cfg.redo_fragmented, result.info["noise_ratio"], cfg.auto_smooth_k)
-            first = {"boundary_edges_per_face": round(float(per_face), 4), "faces": int(len(faces)),
+            first = {"boundary_edges_per_face": round(float(per_face), 4), "faces": int(count),
                      "seconds": result.timings.get("total")}
             spent = {key: float(result.timings.get(key, 0.0)) for key in ("total", "total_cpu")}
             smoothed = dataclasses.replace(cfg, smooth_k=cfg.auto_smooth_k, auto_smooth_k=0, redo_fragmented=0.0)
@@ -345,6 +345,17 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
             for key, seconds in spent.items():
                 result.timings[key] = result.timings.get(key, 0.0) + seconds
     return result
+
+
+def _rim(result: PointCloudResult) -> tuple[int, int]:
+    """(boundary edges, faces) by which `redo_fragmented` judges a mesh: the oriented surface's before the
+    clean-up of its sheets (info["surface"]'s rim_edges, rim_faces), whose hole fills and dropped pieces
+    would hide the shreds (docs/preset_choices.md); without `orient`, the extracted faces' boundary edges."""
+    surface = result.info.get("surface", {})
+    if "rim_edges" in surface:
+        return int(surface["rim_edges"]), int(surface["rim_faces"])
+    faces = np.asarray(result.mesh.faces)
+    return boundary_edge_count(faces), len(faces)
 
 
 def _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe) -> PointCloudResult:
