@@ -14,8 +14,10 @@ given seed count, clean or with Gaussian noise of sigma x the unit radius (gener
 edges / faces; `per root face`: boundary edges / sqrt(faces); `before` / `now`: whether the redo fires by the
 per-face test alone / by both tests.
 
-Part 2, the results store (`runs/paper`, when present): the point-cloud `dmesh` runs there, by group. `clean`:
-done runs on clean input (no noise, outliers or scan), their mesh's largest figures; `first attempts`: the first
+Part 2, the results store (`runs/paper`, when present): the newest point-cloud `dmesh` run of each key there
+(a row of the input and settings, whatever the code version), by group. `clean`:
+done runs on clean input (no noise, outliers or scan), their largest figures (the surface before the sheets'
+clean-up where the run recorded it, else the mesh's boundary); `first attempts`: the first
 pass of every run that was made again (`info["fragmented_attempt"]`), by shape and input.
 """
 from __future__ import annotations
@@ -66,8 +68,11 @@ def _stored(db: Path) -> list[dict]:
     if not db.is_file():
         return []
     con = sqlite3.connect(str(db))
-    rows = con.execute("SELECT shape, config_label, inputs_json, metrics_json, info_json FROM runs WHERE method='dmesh' "
-                       "AND input_kind='pointcloud' AND status='done'").fetchall()
+    # The newest done run of each base key (the store keeps the runs of earlier code versions beside it).
+    rows = con.execute("SELECT shape, config_label, inputs_json, metrics_json, info_json FROM runs r WHERE "
+                       "method='dmesh' AND input_kind='pointcloud' AND status='done' AND finished_at = "
+                       "(SELECT MAX(finished_at) FROM runs s WHERE s.base_key = r.base_key AND s.status='done')"
+                       ).fetchall()
     con.close()
     clean: dict[str, list] = {}
     out = []
@@ -80,6 +85,9 @@ def _stored(db: Path) -> list[dict]:
                         "runs": 1, "faces": first["faces"], "per_face": first["boundary_edges_per_face"],
                         "per_root_face": first["boundary_edges_per_face"] * math.sqrt(first["faces"])})
         faces, b = met.get("faces"), met.get("boundary_edges")
+        surface = info.get("surface") or {}
+        if "rim_edges" in surface:  # what the test reads (runs since 6 December); else the mesh's boundary
+            faces, b = surface["rim_faces"], surface["rim_edges"]
         if faces and b is not None and not {"noise", "outliers", "scan"} & set(corruption):
             clean.setdefault(shape, []).append((b / faces, b / math.sqrt(faces), faces))
     for shape, figures in sorted(clean.items()):
