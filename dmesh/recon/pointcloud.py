@@ -32,10 +32,10 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
 5. With `redo_fragmented` > 0 and `auto_smooth_k` > 0 (not upstream; the `fast` preset): a run that did not
    smooth its input and whose mesh (its surface before the sheets' clean-up: `_rim`) has more than
-   `redo_fragmented` boundary edges per face and more than
-   `FRAGMENTED_RIM` times the square root of its face count (noise that `noise_ratio` missed: the mesh is in
-   shreds; a small intact mesh has many boundary edges per face but few per root face) is done again with the input smoothed (`auto_smooth_k`
-   neighbours, `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
+   `redo_fragmented` boundary edges per face and more than `FRAGMENTED_RIM` times the square root of its face
+   count (noise that `noise_ratio` missed: the mesh is in shreds; a small intact mesh has many boundary edges
+   per face but few per root face) is done again with the input smoothed (`auto_smooth_k` neighbours,
+   `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
    timings' "total" includes it.
 
 The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
