@@ -830,7 +830,8 @@ def floating_crumbs(vertices: np.ndarray, faces: np.ndarray, max_faces: int, oth
         faces_of = [f[by_piece[starts[p]:starts[p + 1]]] for p in pieces]
         dropped[pieces] = _float_apart(v, faces_of, base_tree, np.unique(np.concatenate(kept)) if kept else None,
                                        gap * spacing, size[pieces[0]] > max_faces)
-        kept += [piece.ravel() for piece, out in zip(faces_of, dropped[pieces]) if not out]
+        if size[pieces[0]] > max_faces:  # (the crumbs come last: what they keep anchors nothing)
+            kept += [piece.ravel() for piece, out in zip(faces_of, dropped[pieces]) if not out]
     return dropped[comp]
 
 
@@ -844,7 +845,6 @@ def _float_apart(v: np.ndarray, pieces: list, base_tree, extra: np.ndarray | Non
              if t is not None]
     if not trees:
         return np.zeros(len(pieces), bool)
-    anchors = np.concatenate([t.data for t in trees])
     corners = [np.unique(p) for p in pieces]
     flat = v[np.concatenate(corners)]
     near = np.min([t.query(flat)[0] for t in trees], axis=0)
@@ -852,7 +852,8 @@ def _float_apart(v: np.ndarray, pieces: list, base_tree, extra: np.ndarray | Non
     far = near > gap
     if beyond_extent:
         far &= near > np.array([np.linalg.norm(v[c].max(0) - v[c].min(0)) for c in corners])
-    if far.any() and len(anchors) >= STRAY_NEIGHBOURS:
+    if far.any() and sum(t.n for t in trees) >= STRAY_NEIGHBOURS:
+        anchors = np.concatenate([t.data for t in trees])  # (only the plane test needs them)
         at = np.flatnonzero(far)
         centre = np.array([v[pieces[i]].mean(1).mean(0) for i in at])
         # The nearest anchors of each centre over both trees: each tree's own nearest, merged.
