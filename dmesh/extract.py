@@ -464,7 +464,8 @@ def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continu
     result.info.update(lid_vertices_added=int(len(v) - len(vertices)), lids_faired=bool(solved and not dropped.all()),
                        lids_dropped=int(dropped.sum()))
     if dropped.any():
-        result.info["lid_faces"] = result.info.get("lid_faces", 0) - int((lid & ~span & dropped[np.maximum(piece_of, 0)]).sum())
+        result.info["lid_faces"] = (result.info.get("lid_faces", 0)
+                                    - int((lid & ~span & dropped[np.maximum(piece_of, 0)]).sum()))
     return v, np.concatenate([f[keep], sheets])
 
 

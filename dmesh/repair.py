@@ -42,7 +42,8 @@ def edge_table(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def edges_in(edges: np.ndarray, among: np.ndarray) -> np.ndarray:
     """(E,) bool: which of `edges` ((E, 2) vertex pairs, either order) are in `among` ((K, 2), either order)."""
-    a, b = np.sort(np.asarray(edges, np.int64).reshape(-1, 2), 1), np.sort(np.asarray(among, np.int64).reshape(-1, 2), 1)
+    a, b = (np.sort(np.asarray(edges, np.int64).reshape(-1, 2), 1),
+            np.sort(np.asarray(among, np.int64).reshape(-1, 2), 1))
     if len(a) == 0 or len(b) == 0:
         return np.zeros(len(a), bool)
     n = int(max(a.max(), b.max())) + 1
