@@ -163,6 +163,9 @@ class SurfaceConfig:
                                # larger piece (dmesh.repair.stacked_pieces); 0 keeps them
     max_sheet_hole: int = 24   # holes inside a sheet with at most this many edges are filled, never its rim
                                # (dmesh.repair.sheet_holes); 0 leaves them open
+    hole_gap: float = 8.0      # ... and only where the input sampled across them: the loop's centre within
+                               # this many sample spacings of an input point (`surface`'s samples;
+                               # dmesh.repair.sampled_loops), else it is a hole of the shape; 0: no test
     repair_rounds: int = 20    # rounds of pinch removal (dmesh.solid.repair_pinches)
     revote: bool = True        # vote again with the open sheets set aside (dmesh.solid.open_sheet_walls)
     clean: bool = True         # fill holes, drop fins and crumbs, split where sheets meet; False: orient only
@@ -195,6 +198,8 @@ class SurfaceConfig:
             raise ValueError(f"SurfaceConfig.spans must be >= 0, got {self.spans}")
         if not self.stacked >= 0.0:
             raise ValueError(f"SurfaceConfig.stacked must be >= 0, got {self.stacked}")
+        if not self.hole_gap >= 0.0:
+            raise ValueError(f"SurfaceConfig.hole_gap must be >= 0, got {self.hole_gap}")
         for name in ("max_hole", "max_crumb", "max_sheet_hole", "repair_rounds"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"SurfaceConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -215,7 +220,8 @@ class Surface:
         info: counts: inside_tets, regions_dropped, sheets_set_aside (walls left out of the second vote),
             tets_flipped, closed_faces, lids, lid_faces, span_faces, holes_filled, hole_faces, holes_left
             (holes_crossing of them left open because their fill crossed the surface), fins_dropped, crumbs_dropped,
-            stacked_dropped, sheet_holes_filled, sheet_hole_faces, seams_cut,
+            stacked_dropped, sheet_holes_filled, sheet_hole_faces, sheet_holes_unsampled (left open: the input did
+            not sample across them), seams_cut,
             split_vertices, folds_dropped, sheet_faces; vote ("parity" or "winding"); rim_edges and rim_faces:
             `dmesh.repair.rim_edge_count` and the faces of the surface before its sheets' clean-up (stacked
             pieces, sheet holes), after fins and crumbs are dropped.
@@ -232,7 +238,8 @@ class Surface:
     span: np.ndarray | None = None
 
 
-def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = None) -> Surface:
+def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = None,
+            samples: np.ndarray | None = None) -> Surface:
     """The oriented surface of the mesh faces `walls` of the WDT `pd` (module docstring).
 
     Args:
@@ -241,6 +248,8 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         normals: None, or (points (G, 3), normals (G, 3)) float64 oriented input samples in the frame of
             `pd`: they switch the vote from parity to winding and turn each sheet to face them.
         config: `SurfaceConfig` (None: defaults).
+        samples: (G, 3) float input points in the frame of `pd` (None: those of `normals`, if any): a hole
+            inside a sheet is filled only where they sampled across it (`SurfaceConfig.hole_gap`).
     """
     from dmesh import repair, solid
 
@@ -320,6 +329,13 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
                                      turn_faces=cfg.turn_faces)
     if cfg.clean:  # after the winding: a hole's loop runs against its faces
         loops = repair.sheet_holes(points, sheet, cfg.max_sheet_hole, avoid=closed)
+        samples = normals[0] if samples is None and normals is not None else samples
+        if loops and samples is not None and cfg.hole_gap > 0:
+            # A hole the input did not sample across is one of the shape (a coarse mesh rims it with a few
+            # long edges), not one the extraction left in a sampled surface.
+            sampled = repair.sampled_loops(points, loops, samples, cfg.hole_gap)
+            info.update(sheet_holes_unsampled=int((~sampled).sum()))
+            loops = [loop for loop, keep in zip(loops, sampled) if keep]
         # (off the closed part's edges: a sheet fill along one would give it a third face there)
         fill, filled = (repair.fill_holes(points, sheet, cfg.max_sheet_hole, others=closed, loops=loops,
                                           off_others=True)[:2] if loops else (np.zeros((0, 3), np.int64), 0))
@@ -352,7 +368,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
 
 
 def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool = False, normals=None,
-            config: SurfaceConfig | None = None):
+            config: SurfaceConfig | None = None, samples=None):
     """The mesh of a DMesh as a `trimesh.Trimesh` over the used points (float64, the DMesh's frame).
 
     Args:
@@ -361,13 +377,13 @@ def extract(dm, threshold: float = 0.5, pd=None, mode: str = "all", orient: bool
         mode: which real faces (`mesh_faces`).
         orient: False: those faces as sorted triples; True: the oriented, closed `surface` of them, whose
             `info` goes to `mesh.metadata["surface"]`.
-        normals, config: as in `surface` (used with `orient`).
+        normals, config, samples: as in `surface` (used with `orient`).
     """
     pd = pd if pd is not None else dm.power_diagram()
     walls = mesh_faces(pd, dm.reals.detach().numpy() > threshold, mode)
     if not orient:
         return to_trimesh(pd.points, pd.faces[walls])
-    return _surface_mesh(pd, walls, normals, config)
+    return _surface_mesh(pd, walls, normals, config, samples)
 
 
 def surface_of_mesh(mesh, pd, normals=None, config: SurfaceConfig | None = None):
@@ -392,12 +408,12 @@ def surface_of_mesh(mesh, pd, normals=None, config: SurfaceConfig | None = None)
     return _surface_mesh(pd, walls, normals, config)
 
 
-def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None):
+def _surface_mesh(pd, walls: np.ndarray, normals, config: SurfaceConfig | None, samples=None):
     """`surface` of `walls` as a `trimesh.Trimesh` over the used points of `pd` (info in metadata["surface"])."""
     from dmesh.repair import separate_copies
 
     cfg = config or SurfaceConfig()
-    result = surface(pd, walls, normals, cfg)
+    result = surface(pd, walls, normals, cfg, samples)
     vertices = separate_copies(pd.points[result.vertices], result.faces, result.vertices)
     faces = result.faces
     if result.lid is not None and (result.lid.any() or result.span.any()) and cfg.fairing >= 0:

@@ -492,6 +492,29 @@ STRAY_OFF = 0.3
 STRAY_NEIGHBOURS = 16
 
 
+def sampled_loops(vertices: np.ndarray, loops: list, samples: np.ndarray, gap: float) -> np.ndarray:
+    """(len(loops),) bool: which hole loops the input sampled across: the centre of a loop (its vertices'
+    mean) lies within `gap` times the samples' spacing (the median distance from a sample to its nearest
+    other sample, over at most `SPACING_SAMPLES` of them) of a sample. A loop whose centre is farther from
+    every sample surrounds a hole in the input: a hole of the shape, which a coarse mesh rims with a few long
+    edges, not a gap the extraction left in a sampled surface."""
+    from scipy.spatial import cKDTree
+
+    s = np.asarray(samples, dtype=np.float64).reshape(-1, 3)
+    if not len(loops) or len(s) < 2:
+        return np.ones(len(loops), bool)
+    tree = cKDTree(s)
+    probe = s[:: max(1, len(s) // SPACING_SAMPLES)]
+    spacing = float(np.median(tree.query(probe, k=2)[0][:, 1]))
+    v = np.asarray(vertices, dtype=np.float64)
+    centres = np.array([v[loop].mean(0) for loop in loops])
+    return tree.query(centres)[0] <= gap * spacing
+
+
+#: Most samples whose nearest-neighbour distance `sampled_loops` takes the median of (an even subset).
+SPACING_SAMPLES = 20_000
+
+
 def sheet_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, max_share: float = 0.25,
                 avoid: np.ndarray | None = None, stray_off: float | None = None) -> list[list[int]]:
     """The hole loops (`hole_loops`) inside the sheets `faces` (consistently wound per piece) that a fill may

@@ -468,6 +468,27 @@ def test_sheet_holes_are_small_inner_holes_not_rims_nor_real_holes():
     assert repair.sheet_holes(v, sheet, 8, avoid=np.array([[*ring_edge, 143]])) == []
 
 
+def test_sampled_loops_tell_a_hole_of_the_input_from_a_gap_in_a_sampled_sheet():
+    """`sampled_loops`: samples cover a grid sheet except a disk around one hole; that hole's loop is a
+    hole of the input and stays out, the other, whose centre has samples around it, is sampled across. No
+    samples (or fewer than two) tell nothing: every loop passes."""
+    v, f = _grid(12)
+    gap_hole = (f == 5 * 12 + 3).any(1)                  # two 6-edge holes in the sheet
+    real_hole = (f == 5 * 12 + 8).any(1)
+    sheet = f[~gap_hole & ~real_hole]
+    loops = repair.sheet_holes(v, sheet, 8)
+    centres = [v[loop].mean(0) for loop in loops]
+    rng = np.random.default_rng(0)
+    samples = np.c_[rng.uniform(0, 11, (20_000, 2)), np.zeros(20_000)]
+    samples = samples[np.linalg.norm(samples - v[5 * 12 + 8], axis=1) > 1.0]  # no samples in the real hole
+    sampled = repair.sampled_loops(v, loops, samples, 8.0)
+    near_real = [np.linalg.norm(c - v[5 * 12 + 8]) < 0.5 for c in centres]
+    assert len(loops) == 2 and list(sampled) == [not r for r in near_real]
+    assert repair.sampled_loops(v, loops, samples, 1e6).all()      # a gap that wide counts as sampled
+    assert repair.sampled_loops(v, loops, samples[:1], 8.0).all()
+    assert repair.sampled_loops(v, [], samples, 8.0).shape == (0,)
+
+
 def test_sheet_holes_beside_a_stray_vertex_stay_open():
     """A hole whose loop runs through a vertex lifted off the sheet (an outlier the mesh reached) is not
     filled: its fill would be a tent up to the stray. Lifted less than `STRAY_OFF` of its neighbours' spacing,

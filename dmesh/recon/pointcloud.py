@@ -289,7 +289,7 @@ class _Run:
             # given, vote inside/outside and turn the open sheets.
             mesh = extract(self.dm, cfg.threshold, pd, cfg.extraction, orient=cfg.orient,
                            normals=None if self.nrm_in is None else (self.pts, self.nrm_in),
-                           config=SurfaceConfig(seed=cfg.seed, workers=cfg.workers))
+                           config=SurfaceConfig(seed=cfg.seed, workers=cfg.workers), samples=self.pts)
         if "surface" in mesh.metadata:
             info["surface"] = mesh.metadata.pop("surface")
         mesh.vertices = np.asarray(mesh.vertices) / self.scale + self.center
