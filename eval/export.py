@@ -34,7 +34,7 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 __all__ = ["EXPORT_NAME", "EXPORT_COLUMNS", "FORMAT", "export_store", "read_export", "load_export",
-           "report_store", "keep_tables"]
+           "report_store", "keep_tables", "latest_by_configuration"]
 
 #: Where the export sits inside a report folder.
 EXPORT_NAME = Path("store") / "runs.jsonl.gz"
@@ -44,8 +44,9 @@ EXPORT_COLUMNS = ("key", "method", "config_label", "shape", "category", "input_k
                   "mesh_path", "gt_hash", "started_at", "finished_at", "code_version", "base_key", "code_deps")
 
 
-def _latest(rows: list[dict]) -> list[dict]:
-    """The latest finished row of every configuration (the identity of `eval.reports.select_runs`)."""
+def latest_by_configuration(rows: list[dict]) -> dict[str, dict]:
+    """The latest finished (done or failed) row of every configuration (method, config, shape, input kind,
+    input settings, seed: the identity of `eval.reports.select_runs`), by that identity."""
     best: dict[str, dict] = {}
     for r in rows:
         if r["status"] not in ("done", "failed"):
@@ -54,7 +55,12 @@ def _latest(rows: list[dict]) -> list[dict]:
                             int(r["seed"])], sort_keys=True, default=str)
         if ident not in best or (r["started_at"] or "") >= (best[ident]["started_at"] or ""):
             best[ident] = r
-    return sorted(best.values(), key=lambda r: r["key"])
+    return best
+
+
+def _latest(rows: list[dict]) -> list[dict]:
+    """`latest_by_configuration`'s rows, sorted by key."""
+    return sorted(latest_by_configuration(rows).values(), key=lambda r: r["key"])
 
 
 def export_store(db: str | Path, path: str | Path) -> int:

@@ -2,8 +2,9 @@
 
 A rerun of a sweep under new code replaces the rows the reports show; a row that got worse is easy to miss
 among hundreds that did not move. This compares two sets of runs (each the latest finished run of every
-configuration, as the reports and the export select them, `eval.export`) and lists the configurations whose
-metric moved by more than a tolerance, or whose status changed (done -> failed is a regression too):
+configuration, as the reports and the export select them: `eval.export.latest_by_configuration`) and lists
+the configurations whose metric moved by more than a tolerance, or whose status changed (done -> failed is a
+regression too):
 
     before   the export committed at a git revision (`reports/store/runs.jsonl.gz` there), or an export file
     after    the results store of a work folder, or an export file (default: the working tree's export)
@@ -21,25 +22,7 @@ TOLERANCE = 0.05
 #: Input settings left out of a row's "input" column (the same for every run of the harness's sweeps).
 _QUIET_INPUTS = ("metric_samples", "distance", "radius")
 
-__all__ = ["TOLERANCE", "identity", "latest_runs", "compare_runs", "changes_markdown"]
-
-
-def identity(run: dict) -> str:
-    """A run's configuration (method, config, shape, input kind and settings, seed): what a rerun repeats."""
-    return json.dumps([run["method"], run.get("config_label") or "", run["shape"], run["input_kind"],
-                       run.get("inputs_json"), int(run.get("seed") or 0)], sort_keys=True, default=str)
-
-
-def latest_runs(rows: list[dict]) -> dict[str, dict]:
-    """The latest finished (done or failed) run of every configuration, by `identity`."""
-    best: dict[str, dict] = {}
-    for r in rows:
-        if r.get("status") not in ("done", "failed"):
-            continue
-        key = identity(r)
-        if key not in best or (r.get("started_at") or "") >= (best[key].get("started_at") or ""):
-            best[key] = r
-    return best
+__all__ = ["TOLERANCE", "compare_runs", "changes_markdown"]
 
 
 def _metric(run: dict, metric: str) -> float | None:
@@ -70,9 +53,11 @@ def compare_runs(before: list[dict], after: list[dict], metric: str = "cd_p2s",
 
     A row: change ("worse", "better", "failed now", "done now"), method, config, shape, category, input,
     seed, before, after, ratio (after / before), and the code versions and finish times of both runs."""
+    from eval.export import latest_by_configuration
+
     if not tolerance >= 0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance}")
-    then, now = latest_runs(before), latest_runs(after)
+    then, now = latest_by_configuration(before), latest_by_configuration(after)
     counts = dict.fromkeys(("compared", "worse", "better", "failed now", "done now", "unchanged"), 0)
     counts["only before"] = len(set(then) - set(now))
     counts["only after"] = len(set(now) - set(then))
