@@ -58,15 +58,16 @@ def extractions(points, normals, variants, context=None):
     meshes = {}
     real_extract = pc.extract
 
-    def extract_all(dm, threshold, pd, mode, orient, normals, config):
+    def extract_all(dm, threshold, pd, mode, orient, normals, config, samples=None):
         for label, overrides, extra in variants:
             with context(extra) if context else contextlib.nullcontext():
                 t0 = time.perf_counter()
                 mesh = real_extract(dm, threshold, pd, mode, orient=orient, normals=normals,
-                                    config=dataclasses.replace(config, **overrides))
+                                    config=dataclasses.replace(config, **overrides), samples=samples)
                 seconds = time.perf_counter() - t0
             meshes[label] = (mesh, seconds)
-        return real_extract(dm, threshold, pd, mode, orient=orient, normals=normals, config=config)
+        return real_extract(dm, threshold, pd, mode, orient=orient, normals=normals, config=config,
+                            samples=samples)
 
     pc.extract = extract_all
     try:
