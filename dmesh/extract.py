@@ -159,8 +159,9 @@ class SurfaceConfig:
                                # and so is a closed piece this small beside a larger one, and a sheet piece this
                                # small floating apart from the larger ones (dmesh.repair.floating_crumbs)
     max_debris: float = 1e-3   # ... and so is one of at most this fraction of all the faces beside a closed part
-    stacked: float = 1.0       # ... and a sheet piece of a few faces lying within this many edge lengths of a
-                               # larger piece (dmesh.repair.stacked_pieces); 0 keeps them
+    stacked: float = 1.0       # ... and a sheet piece of a few faces lying within this many edge lengths (at most
+                               # 3 input sample spacings each) of a larger piece (dmesh.repair.stacked_pieces); 0
+                               # keeps them
     max_sheet_hole: int = 24   # holes inside a sheet with at most this many edges are filled, never its rim
                                # (dmesh.repair.sheet_holes); 0 leaves them open
     hole_gap: float = 8.0      # ... and only where the input sampled across them: the loop's centre within
@@ -249,11 +250,14 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
             `pd`: they switch the vote from parity to winding and turn each sheet to face them.
         config: `SurfaceConfig` (None: defaults).
         samples: (G, 3) float input points in the frame of `pd` (None: those of `normals`, if any): a hole
-            inside a sheet is filled only where they sampled across it (`SurfaceConfig.hole_gap`).
+            inside a sheet is filled only where they sampled across it (`SurfaceConfig.hole_gap`), and a
+            stray copy of a sheet lies within a few of their spacings of the larger surface
+            (`dmesh.repair.stacked_pieces`).
     """
     from dmesh import repair, solid
 
     cfg = config or SurfaceConfig()
+    samples = normals[0] if samples is None and normals is not None else samples
     walls = np.asarray(walls, dtype=bool)
     points = pd.points
     if not walls.any():
@@ -307,7 +311,7 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
         # preset's test for a mesh in shreds, `redo_fragmented`, reads it).
         info.update(rim_edges=repair.rim_edge_count(np.concatenate([closed, sheet])),
                     rim_faces=int(len(closed) + len(sheet)))
-        stacked = repair.stacked_pieces(points, sheet, closed, cfg.stacked)
+        stacked = repair.stacked_pieces(points, sheet, closed, cfg.stacked, samples=samples)
         # A piece hanging on an edge of a sheet keeps that edge apart (`split_fans` below); without the piece,
         # the two faces left would join there, and where the sheet folds over itself they would join in a
         # twist (a seam: no winding agrees across it). The winding is found with those edges still apart, and
@@ -329,7 +333,6 @@ def surface(pd, walls: np.ndarray, normals=None, config: SurfaceConfig | None = 
                                      turn_faces=cfg.turn_faces)
     if cfg.clean:  # after the winding: a hole's loop runs against its faces
         loops = repair.sheet_holes(points, sheet, cfg.max_sheet_hole, avoid=closed)
-        samples = normals[0] if samples is None and normals is not None else samples
         if loops and samples is not None and cfg.hole_gap > 0:
             # A hole the input did not sample across is one of the shape (a coarse mesh rims it with a few
             # long edges), not one the extraction left in a sampled surface.

@@ -504,11 +504,23 @@ def sampled_loops(vertices: np.ndarray, loops: list, samples: np.ndarray, gap: f
     if not len(loops) or len(s) < 2:
         return np.ones(len(loops), bool)
     tree = cKDTree(s)
-    probe = s[:: max(1, len(s) // SPACING_SAMPLES)]
-    spacing = float(np.median(tree.query(probe, k=2)[0][:, 1]))
+    spacing = sample_spacing(s, tree)
     v = np.asarray(vertices, dtype=np.float64)
     centres = np.array([v[loop].mean(0) for loop in loops])
     return tree.query(centres)[0] <= gap * spacing
+
+
+def sample_spacing(samples: np.ndarray, tree=None) -> float:
+    """The samples' spacing: the median distance from a sample to its nearest other sample, over at most
+    `SPACING_SAMPLES` of them (an even subset). `tree`: a cKDTree of `samples`, if one is built already."""
+    from scipy.spatial import cKDTree
+
+    s = np.asarray(samples, dtype=np.float64).reshape(-1, 3)
+    if len(s) < 2:
+        return float("inf")
+    tree = cKDTree(s) if tree is None else tree
+    probe = s[:: max(1, len(s) // SPACING_SAMPLES)]
+    return float(np.median(tree.query(probe, k=2)[0][:, 1]))
 
 
 #: Most samples whose nearest-neighbour distance `sampled_loops` takes the median of (an even subset).
@@ -902,10 +914,16 @@ STACKED_NEIGHBOURS = 16
 #: local edge lengths aside from the foot of the perpendicular (a piece in a hole of a larger one lies beside
 #: its faces, and covers what they do not).
 STACKED_OVER = 0.1
+#: A stray copy lies in the band the input's samples spread over: with samples given, `stacked_pieces`'s length
+#: is at most this many sample spacings. On a dense mesh an edge is shorter than that and the cap changes
+#: nothing; a coarse mesh's edges are many spacings long, and a part of the shape lying within one of them of
+#: another (an eye in its socket) is no copy: the input sampled it on its own.
+STACKED_SPACINGS = 3.0
 
 
 def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray | None = None,
-                   tol: float = 1.0, max_faces: int = STACKED_MAX_FACES) -> np.ndarray:
+                   tol: float = 1.0, max_faces: int = STACKED_MAX_FACES, samples: np.ndarray | None = None
+                   ) -> np.ndarray:
     """(F,) bool: the faces of small pieces of `faces` that lie on a larger surface: stray copies of it.
 
     Pieces are joined through edges of two faces (`edge_pieces` with `manifold`: a piece hanging on a
@@ -918,7 +936,9 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
     the larger surface does not, yet each adds a component and three boundary edges, and in a render they
     flicker through the surface. A piece that covers a part of the shape nothing else covers lies farther
     off (a leaf that did not join up) or beside the larger piece's faces (in a hole of it), and stays.
-    `tol` <= 0 flags nothing.
+    `samples`: (G, 3) input points in the frame of `vertices`, or None: the length is then at most
+    `STACKED_SPACINGS` of their spacings (`sample_spacing`), so on a coarse mesh a piece the input sampled
+    on its own, a few spacings off a larger one, stays. `tol` <= 0 flags nothing.
     """
     from scipy.spatial import cKDTree
     from trimesh.triangles import closest_point
@@ -955,6 +975,8 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
     aside = np.linalg.norm(offset - along[:, None] * normal, axis=1)  # 0 when q lies over the face
     over = aside <= STACKED_OVER * scale[np.repeat(np.arange(len(query)), k)[larger]]
     gap[np.flatnonzero(larger)[over]] = np.abs(along[over])
+    if samples is not None:
+        scale = np.minimum(scale, STACKED_SPACINGS * sample_spacing(samples))
     ratio = gap.reshape(len(query), k).min(1) / np.maximum(scale, FLOAT64_FLOOR)
     worst = np.zeros(n)
     np.maximum.at(worst, piece[query], ratio)

@@ -443,6 +443,25 @@ def test_stacked_pieces_are_small_pieces_lying_on_a_larger_surface():
     assert not repair.stacked_pieces(w, np.array([[0, 1, 2], [3, 4, 5]])).any()
 
 
+def test_stacked_pieces_keep_a_part_the_input_sampled_a_few_spacings_off():
+    """On a coarse mesh (unit edges) a triangle half an edge over a larger surface is within its edge length and
+    flagged. With the input's samples (spacing 0.05) the length is at most `STACKED_SPACINGS` of their
+    spacings: the triangle the samples cover on its own, 10 spacings off, stays (an eye in its socket), and one
+    in the band of the surface is still a stray copy."""
+    v, f = _grid(12)
+    band = [[3.2, 3.3, 0.02], [4.1, 3.4, -0.02], [3.6, 4.2, 0.01]]
+    eye = [[6.2, 6.3, 0.5], [7.1, 6.4, 0.5], [6.6, 7.2, 0.5]]
+    v = np.concatenate([v, band, eye])
+    faces = np.concatenate([f, [[144, 145, 146], [147, 148, 149]]])
+    assert repair.stacked_pieces(v, faces)[-2:].tolist() == [True, True]
+    x, y = np.meshgrid(np.arange(0.0, 11.0, 0.05), np.arange(0.0, 11.0, 0.05), indexing="ij")
+    plane = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    bary = np.random.default_rng(0).dirichlet(np.ones(3), 400)
+    samples = np.concatenate([plane, bary @ np.array(eye)])
+    assert repair.sample_spacing(samples) == pytest.approx(0.05)
+    assert repair.stacked_pieces(v, faces, samples=samples)[-2:].tolist() == [True, False]
+
+
 def test_sheet_holes_are_small_inner_holes_not_rims_nor_real_holes():
     v, f = _grid(12)
     centre = 5 * 12 + 5                                  # the six faces around one vertex: a 6-edge hole
