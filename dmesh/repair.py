@@ -523,7 +523,7 @@ def sample_spacing(samples: np.ndarray, tree=None) -> float:
     return float(np.median(tree.query(probe, k=2)[0][:, 1]))
 
 
-#: Most samples whose nearest-neighbour distance `sampled_loops` takes the median of (an even subset).
+#: Most samples whose nearest-neighbour distance `sample_spacing` takes the median of (an even subset).
 SPACING_SAMPLES = 20_000
 
 
@@ -936,7 +936,7 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
     the larger surface does not, yet each adds a component and three boundary edges, and in a render they
     flicker through the surface. A piece that covers a part of the shape nothing else covers lies farther
     off (a leaf that did not join up) or beside the larger piece's faces (in a hole of it), and stays.
-    `samples`: (G, 3) input points in the frame of `vertices`, or None: the length is then at most
+    `samples`: None, or (G, 3) input points in the frame of `vertices`: with them the length is at most
     `STACKED_SPACINGS` of their spacings (`sample_spacing`), so on a coarse mesh a piece the input sampled
     on its own, a few spacings off a larger one, stays. `tol` <= 0 flags nothing.
     """
