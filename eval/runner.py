@@ -739,15 +739,16 @@ def plan_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepPlan:
     """What `run_sweep` would run, without running it: the runs stored and pending, and for the pending ones
     the wall time (start to finish, metrics included) of the latest finished run of the same configuration
     (method, config overrides, shape, input kind, input settings, seed) of any code version in the store. A time
-    estimate from measured runs: they ran under whatever load the machine had then."""
-    work = Path(runner.work)
-    shapes, _ = resolve_and_prepare_shapes(sweep, work)
-    runs = expand(sweep, shapes)
+    estimate from measured runs: they ran under whatever load the machine had then.
+
+    Writes nothing: no GT is prepared (a run's key needs its shape's GT hash, not the GT) and the store is only
+    read (`Store(readonly=True)`)."""
+    runs = expand(sweep, sweep.resolved_shapes())
     plan = SweepPlan(name=sweep.name, total=len(runs))
     if not Path(runner.db_path).is_file():  # no store yet: everything is to run, nothing was ever timed
         plan.pending = len(runs)
         return plan
-    with Store(runner.db_path) as store:
+    with Store(runner.db_path, readonly=True) as store:
         if runner.rerun is None:
             planned = [r.key for r in runs]
             runs = adopt_current(runs, store)

@@ -184,15 +184,72 @@ def _process_lease() -> Lease:
     return _PROCESS_LEASE
 
 
+def _reader(path: Path) -> sqlite3.Connection:
+    """A connection that reads the SQLite file `path` and writes nothing, not even a file beside it.
+
+    SQLite's own read-only mode (`mode=ro`) still creates the `-wal` and `-shm` files of a WAL store, and
+    leaves them behind because it may not delete them. While no process has the store open (no `-wal` or
+    `-journal` beside it) the file alone holds every committed run, so it is read as immutable: no locks, no
+    files. While one has, its `-wal` holds runs not yet copied into the file, and `mode=ro` reads them
+    through the files that process keeps.
+    """
+    busy = any(Path(f"{path}{suffix}").exists() for suffix in ("-wal", "-journal"))
+    uri = path.absolute().as_uri() + ("?mode=ro" if busy else "?immutable=1")
+    return sqlite3.connect(uri, uri=True, timeout=30.0, isolation_level=None)
+
+
+def check_store(path: str | Path, *, write: bool) -> None:
+    """Checks, writing nothing, that `path` is absent (a new store is made there) or a results store that can
+    be read whole (SQLite's quick_check) and, with `write`, written: the file and its folder (where SQLite
+    keeps the `-wal` and `-shm` files) writable. An empty SQLite file counts as a new store.
+
+    Raises:
+        ValueError: the problem, naming the store.
+    """
+    path = Path(path)
+    if not path.exists():
+        return
+    try:
+        con = _reader(path)
+        try:
+            tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+            problems = [r[0] for r in con.execute("PRAGMA quick_check(1)")]
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise ValueError(f"results store {path}: cannot be read ({exc}); move it away or give another --db") from None
+    if problems != ["ok"]:
+        what = " ".join(" ".join(problems).replace("*** in database main ***", "").split())
+        raise ValueError(f"results store {path}: cannot be read (damaged: {what}); move it away or give another --db")
+    if tables and "runs" not in tables:
+        raise ValueError(f"results store {path}: a SQLite database of something else (tables {', '.join(tables)}, "
+                         f"no runs); give another --db")
+    if write and not os.access(path, os.W_OK):
+        raise ValueError(f"results store {path}: the store file is not writable; give another --db")
+    folder = path.absolute().parent
+    if write and not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"results store {path}: folder {folder} is not writable (SQLite keeps the store's -wal "
+                         f"and -shm files there); give another --db")
+
+
 class Store:
     """The `runs` table of one SQLite file.
 
     Args:
         path: the database file; its folder is created. ":memory:" works for tests.
+        readonly: only read `path`, an existing file, and write nothing (`_reader`): no folder, no migration of
+            an older store (its missing columns read as NULL), no `-wal` or `-shm` file left behind.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, readonly: bool = False):
         self.path = Path(path) if str(path) != ":memory:" else None
+        if readonly:
+            if self.path is None:
+                raise ValueError("Store: readonly needs a file, not ':memory:'")
+            self._conn = _reader(self.path)
+            self._conn.row_factory = sqlite3.Row
+            self._shadow_older_schema()
+            return
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._conn = sqlite3.connect(str(path), timeout=30.0, isolation_level=None)
@@ -210,6 +267,17 @@ class Store:
                     self._conn.execute(f"ALTER TABLE runs ADD COLUMN {name} {decl.replace('PRIMARY KEY', '')}")
             self._conn.execute("CREATE INDEX IF NOT EXISTS runs_status ON runs(status)")
             self._conn.execute("CREATE INDEX IF NOT EXISTS runs_base_key ON runs(base_key)")
+
+    def _shadow_older_schema(self) -> None:
+        # A read-only store cannot be migrated; a temporary table or view named runs (which SQLite finds before
+        # the file's own) gives it the current columns instead, in memory.
+        have = [r["name"] for r in self._conn.execute("PRAGMA main.table_info(runs)")]
+        if not have:
+            cols = ", ".join(f"{k} {v}" for k, v in _COLUMNS.items())
+            self._conn.execute(f"CREATE TEMP TABLE runs ({cols})")
+        elif set(COLUMNS) - set(have):
+            cols = ", ".join(name if name in have else f"NULL AS {name}" for name in COLUMNS)
+            self._conn.execute(f"CREATE TEMP VIEW runs AS SELECT {cols} FROM main.runs")
 
     def _set_wal(self) -> None:
         # Switching to WAL needs a moment alone with the file; a second process opening the store at the

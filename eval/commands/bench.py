@@ -75,28 +75,15 @@ def build_sweep(args, path=None, strict: bool = True):
     return Sweep.from_dict(d).with_overrides(args.sets or [], strict=strict)
 
 
-def check_work(work, db) -> None:
+def check_work(work, db, *, write: bool = True) -> None:
     """Checks, before anything is written, that the work folder `work` can be used and that the results store
-    `db` (WORK/results.sqlite unless --db) is absent or a readable store; ValueError naming the problem."""
-    import sqlite3
-
+    `db` (WORK/results.sqlite unless --db) is absent or a store that can be read whole and, with `write` (a
+    command that may add or change runs), written (`eval.store.check_store`); ValueError naming the problem."""
     from eval.cli import check_output_dir, check_output_file
+    from eval.store import check_store
 
     check_output_dir(work, "--work")
-    db = check_output_file(db, "--db")
-    if not db.exists():
-        return
-    try:
-        con = sqlite3.connect(db.absolute().as_uri() + "?mode=ro", uri=True)
-        try:
-            tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
-        finally:
-            con.close()
-    except sqlite3.Error as exc:
-        raise ValueError(f"results store {db}: cannot be read ({exc}); move it away or give another --db") from None
-    if tables and "runs" not in tables:
-        raise ValueError(f"results store {db}: a SQLite database of something else (tables {', '.join(tables)}, "
-                         f"no runs); give another --db")
+    check_store(check_output_file(db, "--db"), write=write)
 
 
 def summary_text(db, kinds=None, keys=None) -> str:
@@ -150,7 +137,7 @@ def run(args) -> int:
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed, ray_address=args.ray_address, threads=args.threads,
                           rerun=args.rerun)
-    check_work(args.work, runner.db_path)
+    check_work(args.work, runner.db_path, write=not args.plan)
     if args.plan:
         return print_plans([sweep], runner)
     if args.report:

@@ -85,7 +85,7 @@ def run(args) -> int:
         from eval.export import keep_tables, report_store
 
         db = Path(args.db) if args.db else RunnerConfig(work=args.work).db_path
-        check_work(args.work, db)
+        check_work(args.work, db, write=False)
         # No SQLite store (a fresh clone): the committed export OUT/store/runs.jsonl.gz; no table goes empty.
         with report_store(db, args.out, args.work) as source, keep_tables(args.out):
             paths = write_reports(source, args.out, work=Path(args.work), title="DMesh harness: stored runs",
@@ -119,7 +119,7 @@ def run(args) -> int:
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed, ray_address=args.ray_address,
                           rerun=args.rerun)
-    check_work(args.work, runner.db_path)
+    check_work(args.work, runner.db_path, write=not args.plan)
     if args.plan:
         from eval.commands.bench import print_plans
 

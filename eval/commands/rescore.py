@@ -42,16 +42,17 @@ def run(args) -> int:
 
     from eval.progress import progress
     from eval.runner import load_gt, resolve_mesh_path, score
-    from eval.store import Store
+    from eval.store import Store, check_store
     from eval.sweep import metrics_version
 
     work = Path(args.work)
     db = Path(args.db) if args.db else work / "results.sqlite"
     if not db.is_file():
         raise FileNotFoundError(f"no results store at {db}: give --work or --db")
+    check_store(db, write=not args.plan)  # before any run is scored: a store it could not write back to
     current = metrics_version()
     todo, no_mesh, scored = [], 0, 0
-    with Store(db) as store:
+    with Store(db, readonly=args.plan) as store:
         for row in store.rows(status="done"):
             if ((args.methods and row["method"] not in args.methods)
                     or (args.shapes and row["shape"] not in args.shapes)
