@@ -19,12 +19,16 @@ and the res2/res3/res4 decimations mixed (their back-to-back face pairs are 2-fa
 """
 from __future__ import annotations
 
+import io
 import logging
 import os
+import re
 from pathlib import Path
 
 import numpy as np
 import trimesh
+
+from dmesh.checks import check_coordinates
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +57,8 @@ def load_mesh(path: str | os.PathLike, orient: bool = False) -> trimesh.Trimesh:
         path: a mesh file.
         orient: pass the mesh through `orient_outward` (for a ground truth or an input to sample: an
             inside-out closed mesh is flipped, with a warning naming the file); its status goes into
-            `mesh.metadata["orientation"]`. Never set it for a prediction under test.
+            `mesh.metadata["orientation"]`. A mesh of no area is refused then. Never set it for a
+            prediction under test.
 
     Returns:
         A `trimesh.Trimesh` with vertices (V, 3) float64 and faces (F, 3) int64, F >= 1.
@@ -61,8 +66,9 @@ def load_mesh(path: str | os.PathLike, orient: bool = False) -> trimesh.Trimesh:
     Raises:
         FileNotFoundError: no such file.
         ValueError: one line naming the file and the problem: unsupported suffix, unreadable file, element
-            counts that disagree with the header, no faces, non-finite (NaN/inf) vertices, or face indices
-            out of range.
+            counts that disagree with the header, no faces, non-finite (NaN/inf) vertices, coordinates past
+            `dmesh.tolerances.MAX_COORDINATE`, or face indices out of range. OBJ relative (negative) face
+            indices count back from the last vertex read, as the format says.
     """
     path = Path(path)
     if not path.exists():
@@ -84,7 +90,11 @@ def load_mesh(path: str | os.PathLike, orient: bool = False) -> trimesh.Trimesh:
         detail = str(exc).removeprefix(f"{path}: ")
         raise ValueError(f"{path}: cannot read mesh ({detail})") from None
     try:
-        loaded = trimesh.load(str(path), process=False)
+        relative = _obj_with_absolute_indices(path) if suffix == ".obj" else None
+        if relative is not None:
+            loaded = trimesh.load(io.BytesIO(relative), file_type="obj", process=False)
+        else:
+            loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files; report them as one line
         raise ValueError(f"{path}: cannot read mesh ({type(exc).__name__}: {_one_line(exc)})") from None
 
@@ -110,6 +120,7 @@ def load_mesh(path: str | os.PathLike, orient: bool = False) -> trimesh.Trimesh:
         raise ValueError(f"{path}: {bad} vertices have NaN or infinite coordinates")
     if f.min() < 0 or f.max() >= len(v):
         raise ValueError(f"{path}: face indices out of range [0, {len(v)})")
+    check_coordinates(v, str(path))
 
     v, f = merge_vertices(v, f)
     ok = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
@@ -126,8 +137,51 @@ def load_mesh(path: str | os.PathLike, orient: bool = False) -> trimesh.Trimesh:
     out = trimesh.Trimesh(v, f, process=False)
     log.debug("%s: %d vertices, %d faces", path, len(out.vertices), len(out.faces))
     if orient:
+        if not out.area > 0:  # before the winding is judged: a surface of no area has no winding to report
+            raise ValueError(f"{path}: no face has a positive area (every face is degenerate); a ground truth or "
+                             f"an input to sample needs a surface")
         out, _ = orient_outward(out, name=str(path))
     return out
+
+
+_RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*?(?<![^\s/])-\d")
+
+
+def _obj_with_absolute_indices(path: Path) -> bytes | None:
+    """The OBJ file's bytes with relative (negative) face indices made absolute, or None when it has none.
+
+    OBJ lets a face name its corners counting back from the last vertex read (`f -3 -2 -1`); trimesh 4-5 reads
+    such indices as if they counted from the end of the whole file (a sphere of 162 vertices written as 320
+    `v v v f -3 -2 -1` groups loads as 3 vertices). Written here because no library at hand reads them right;
+    only files with a negative face index pay for this pass. Texture and normal indices (`v/vt/vn`) count
+    back over their own lists."""
+    data = path.read_bytes()
+    if _RELATIVE_FACE.search(data) is None:
+        return None
+    counts = {b"v": 0, b"vt": 0, b"vn": 0}
+    kinds = (b"v", b"vt", b"vn")
+    out = []
+    for number, line in enumerate(data.splitlines(), start=1):
+        words = line.split()
+        if words and words[0] in counts:
+            counts[words[0]] += 1
+        elif words and words[0] == b"f":
+            corners = []
+            for word in words[1:]:
+                parts = word.split(b"/")
+                for k, part in enumerate(parts[:3]):
+                    if part.startswith(b"-"):
+                        try:
+                            parts[k] = str(counts[kinds[k]] + 1 + int(part)).encode()
+                        except ValueError:
+                            raise ValueError(f"line {number}: bad face index {part.decode(errors='replace')!r}")
+                        if int(parts[k]) < 1:
+                            raise ValueError(f"line {number}: face index {part.decode()} reaches before the first "
+                                             f"{kinds[k].decode()} line")
+                corners.append(b"/".join(parts))
+            line = b"f " + b" ".join(corners)
+        out.append(line)
+    return b"\n".join(out) + b"\n"
 
 
 #: Vertices closer than this fraction of the bounding box's largest side count as one position

@@ -1,5 +1,10 @@
-"""Checks of config fields, written once; each raises ValueError naming the config class and the field."""
+"""Checks of config fields and input coordinates, written once; each raises a one-line ValueError naming the
+problem (the config class and field, or the input)."""
 from __future__ import annotations
+
+import numpy as np
+
+from dmesh.tolerances import LINE_RATIO, MAX_COORDINATE
 
 
 def require_positive(config, names) -> None:
@@ -9,4 +14,28 @@ def require_positive(config, names) -> None:
             raise ValueError(f"{type(config).__name__}.{name} must be positive, got {getattr(config, name)}")
 
 
-__all__ = ["require_positive"]
+def check_coordinates(values, what: str) -> None:
+    """ValueError unless every coordinate of `values` ((N, 3) floats, finite) is within `MAX_COORDINATE`.
+
+    Inputs are squared and cubed before they are normalised (distances, volumes); past the limit those
+    overflow float64 and the failure would surface far away as a traceback or a silent NaN."""
+    largest = float(np.abs(np.asarray(values, np.float64)).max(initial=0.0))
+    if largest > MAX_COORDINATE:
+        raise ValueError(f"{what}: coordinates up to {largest:.3g} in absolute value; at most {MAX_COORDINATE:.0e} "
+                         f"are supported (their powers overflow float64): scale the input down")
+
+
+def check_not_a_line(points, what: str) -> None:
+    """ValueError when the (N, 3) finite points lie on one line (the second principal extent below `LINE_RATIO`
+    of the first): they bound no surface."""
+    p = np.asarray(points, np.float64)
+    centred = p - p.mean(axis=0)
+    scale = float(np.abs(centred).max(initial=0.0))
+    if scale == 0.0:
+        return  # one point repeated: the callers say so in their own words
+    s = np.linalg.svd(centred / scale, compute_uv=False)
+    if s[1] <= LINE_RATIO * s[0]:
+        raise ValueError(f"{what}: all {len(p)} points lie on one line (no surface to reconstruct)")
+
+
+__all__ = ["check_coordinates", "check_not_a_line", "require_positive"]

@@ -30,5 +30,14 @@ COLLINEAR = 1e-12
 #: Norm of u x axis below which a unit vector u counts as parallel to the axis (pick another axis).
 PARALLEL = 1e-6
 
+#: Largest absolute input coordinate accepted. Before an input is normalised, its coordinates are squared
+#: (distances), cubed (volumes) and raised to the fourth power (a cross product in a norm: areas) in float64,
+#: whose range ends near 1.8e308: at 1e75 a fourth power is 1e300, still finite.
+MAX_COORDINATE = 1e75
+
+#: Ratio of an input's second to first principal extent below which its points count as lying on a line (no
+#: surface to reconstruct); the sine of `COLLINEAR`.
+LINE_RATIO = 1e-6
+
 __all__ = ["GEOMETRY_EPS", "DIVISION_FLOOR", "FLOAT64_FLOOR", "GRAD_NORM_FLOOR", "COINCIDENT", "COLLINEAR",
-           "PARALLEL"]
+           "PARALLEL", "MAX_COORDINATE", "LINE_RATIO"]

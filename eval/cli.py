@@ -6,7 +6,8 @@ Each subcommand is a module in `eval/commands/` defining `NAME`, `HELP`, `add_ar
 Every failure is one line on stderr, `dmesh <command>: error: <what is wrong>`, with exit status 2: argparse's
 own errors (without the usage block), and the ValueError, OSError, MemoryError or `CliError` a command
 raises. Commands check their inputs and output paths (`check_output_file`, `check_output_dir`) before any
-work starts, so a failure leaves no partial output.
+work starts, so a failure leaves no partial output; an output path that is (or, a folder, holds) one of the
+command's inputs is refused, so no input file is ever written.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import logging
 import os
 import pkgutil
 import sys
+import warnings
 from pathlib import Path
 
 import eval.commands as commands_pkg
@@ -57,25 +59,51 @@ def _check_can_create(path: Path, flag: str) -> None:
         raise ValueError(f"{flag} {path}: folder {above} is not writable")
 
 
-def check_output_file(path, flag: str = "-o", suffixes: tuple[str, ...] | None = None) -> Path:
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether `a` and `b` name one file: the same path once links are followed, or one inode (hard links)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _check_not_an_input(path: Path, flag: str, inputs, folder: bool) -> None:
+    """ValueError when the output `path` is one of `inputs`, or (a `folder` the command writes) holds one."""
+    for given in inputs:
+        if given is None:
+            continue
+        inp = Path(given)
+        if _same_file(path, inp):
+            raise ValueError(f"{flag} {path}: is the input {inp}; the output would overwrite it: give another path")
+        if folder and path.resolve() in inp.resolve().parents:
+            raise ValueError(f"{flag} {path}: holds the input {inp}, which the output could replace: give another "
+                             f"folder")
+
+
+def check_output_file(path, flag: str = "-o", suffixes: tuple[str, ...] | None = None, inputs=()) -> Path:
     """`path` as a Path if a file can be written there; else ValueError naming `flag` and the problem.
 
-    Checked before any work starts: not an existing folder, one of `suffixes` (when given), and a writable
-    folder to hold it (created if missing)."""
+    Checked before any work starts: not an existing folder, none of the command's `inputs` (also through
+    links), one of `suffixes` (when given), and a writable folder to hold it (created if missing)."""
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"{flag} {path}: is a folder; give a file name")
+    _check_not_an_input(path, flag, inputs, folder=False)
     if suffixes is not None and path.suffix.lower() not in suffixes:
         raise ValueError(f"{flag} {path}: expected a file ending in {', '.join(suffixes)}")
     _check_can_create(path, flag)
     return path
 
 
-def check_output_dir(path, flag: str = "-o") -> Path:
-    """`path` as a Path if it is a writable folder or can be created as one; else ValueError."""
+def check_output_dir(path, flag: str = "-o", inputs=()) -> Path:
+    """`path` as a Path if it is a writable folder or can be created as one, and neither is nor holds one of
+    the command's `inputs` (files or folders, also through links); else ValueError."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{flag} {path}: is a file, not a folder")
+    _check_not_an_input(path, flag, inputs, folder=True)
     if path.is_dir():
         if not os.access(path, os.W_OK | os.X_OK):
             raise ValueError(f"{flag} {path}: folder is not writable")
@@ -117,6 +145,10 @@ def main(argv: list[str] | None = None) -> int:
     import eval.progress
 
     eval.progress.QUIET = bool(args.quiet)
+    # A library's warning as one line that names the command (Python prints it with its source line).
+    formatwarning = warnings.formatwarning
+    warnings.formatwarning = lambda message, category, *_, **__: \
+        f"dmesh {args.command}: warning: {category.__name__}: {one_line(message)}\n"
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
@@ -130,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
             msg = f"out of memory ({msg}); use smaller sizes"
         print(f"dmesh {args.command}: error: {msg}", file=sys.stderr)
         return 2
+    finally:
+        warnings.formatwarning = formatwarning
 
 
 if __name__ == "__main__":

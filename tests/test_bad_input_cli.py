@@ -10,6 +10,7 @@ named in `_make_files`.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import sqlite3
 from pathlib import Path
@@ -48,10 +49,18 @@ def _make_files(d: Path) -> None:
     con.commit()
     con.close()
     (d / "ro").mkdir()
+    (d / "link.npy").symlink_to(d / "pts.npy")
+    os.link(d / "mesh.obj", d / "hard.obj")
+    (d / "fitted").mkdir()
+    (d / "fitted" / "result.json").write_text("{}\n")
+    (d / "fitted" / "mesh.obj").write_text(_TETRA_OBJ)
+    (d / "big.obj").write_text(_TETRA_OBJ.replace("v 0 0 1", "v 0 0 1e300"))
 
 
 def _snapshot(d: Path) -> dict:
-    return {str(p.relative_to(d)): (p.stat().st_size if p.is_file() else None) for p in sorted(d.rglob("*"))}
+    """Every path under `d` with its bytes' digest (None for a folder): a failed command changes none."""
+    return {str(p.relative_to(d)): (hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None)
+            for p in sorted(d.rglob("*"))}
 
 
 @pytest.fixture
@@ -154,7 +163,7 @@ CASES = [
          ["reconstruct", "pointcloud", "{d}/pts.npy", "-o", "{d}/afile/out.obj"], "{d}/afile is a file"),
     case("reconstruct-state-is-the-input",
          ["reconstruct", "pointcloud", "{d}/pts.npy", "-o", "{d}/out.obj", "--state", "{d}/pts.npy"],
-         "is the input or the output"),
+         "--state {d}/pts.npy: is the input {d}/pts.npy"),
     case("fit-out-folder-of-other-files", ["fit", "{d}/mesh.obj", "-o", "{d}/adir"], "no result.json"),
     case("demo-out-existing-file", ["demo", "-o", "{d}/afile"], "is a file, not a folder"),
     case("compare-out-existing-file", ["compare", "{d}/mesh.obj", "-o", "{d}/afile"], "is a file, not a folder"),
@@ -187,6 +196,31 @@ CASES = [
     case("compare-mesh-is-a-folder", ["compare", "{d}/adir", "-o", "{d}/cmp"], "is a folder, not a mesh file"),
     case("reconstruct-multiview-missing-folder", ["reconstruct", "multiview", "{d}/nosuch", "-o", "{d}/out.obj"],
          "nosuch: no such folder"),
+    # ---- issue 57 item 3: no output may be an input (same path, a symbolic or a hard link)
+    case("reconstruct-out-is-the-input", ["reconstruct", "pointcloud", "{d}/mesh.obj", "-o", "{d}/mesh.obj"],
+         "-o {d}/mesh.obj: is the input {d}/mesh.obj; the output would overwrite it"),
+    case("reconstruct-out-is-the-input-by-another-spelling",
+         ["reconstruct", "pointcloud", "{d}/mesh.obj", "-o", "{d}/adir/../mesh.obj"], "is the input"),
+    case("reconstruct-out-is-a-hard-link-of-the-input",
+         ["reconstruct", "pointcloud", "{d}/mesh.obj", "-o", "{d}/hard.obj"], "is the input {d}/mesh.obj"),
+    case("reconstruct-state-is-a-link-to-the-input",
+         ["reconstruct", "pointcloud", "{d}/pts.npy", "-o", "{d}/out.obj", "--state", "{d}/link.npy"],
+         "--state {d}/link.npy: is the input"),
+    case("reconstruct-state-is-the-output",
+         ["reconstruct", "pointcloud", "{d}/pts.npy", "-o", "{d}/out.obj", "--state", "{d}/out.obj"],
+         "is an output too"),
+    case("fit-out-holds-the-input", ["fit", "{d}/fitted/mesh.obj", "-o", "{d}/fitted"],
+         "-o {d}/fitted: holds the input {d}/fitted/mesh.obj"),
+    case("export-store-out-is-the-store", ["export-store", "--db", "{d}/other.sqlite", "-o", "{d}/other.sqlite"],
+         "-o {d}/other.sqlite: is the input"),
+    # ---- issue 57 item 4: coordinates whose powers overflow float64, refused at load by every command
+    case("metrics-gt-1e300", ["metrics", "{d}/mesh.obj", "{d}/big.obj"], "big.obj: coordinates up to 1e+300"),
+    case("metrics-pred-1e300", ["metrics", "{d}/big.obj", "{d}/mesh.obj"], "at most 1e+75 are supported"),
+    case("fit-1e300", ["fit", "{d}/big.obj", "-o", "{d}/fit"], "coordinates up to 1e+300"),
+    case("capture-1e300", ["capture", "{d}/big.obj", "-o", "{d}/cap"], "coordinates up to 1e+300"),
+    case("compare-1e300", ["compare", "{d}/big.obj", "-o", "{d}/cmp"], "coordinates up to 1e+300"),
+    case("reconstruct-mesh-1e300", ["reconstruct", "pointcloud", "{d}/big.obj", "-o", "{d}/out.obj"],
+         "coordinates up to 1e+300"),
     # ---- argparse errors: one line too, no usage block
     case("unknown-command", ["nosuch"], "invalid choice: 'nosuch'"),
     case("reconstruct-missing-out", ["reconstruct", "pointcloud", "{d}/pts.npy"],

@@ -85,6 +85,20 @@ def _trimesh_export(suffix, scale):
     return make
 
 
+def _relative(folder: Path) -> Path:
+    """Each face written as its own three `v` lines then `f -3 -2 -1` (OBJ's relative indices), with texture
+    and normal indices counting back over their own lists: the sphere's 642 vertices and 1280 faces, once
+    merged."""
+    rows = []
+    for a, b, c in ICO.faces.tolist():
+        rows += [f"v {x!r} {y!r} {z!r}" for x, y, z in ICO.vertices[[a, b, c]].tolist()]
+        rows += ["vt 0 0", "vt 1 0", "vt 0 1", "vn 0 0 1"]
+        rows.append("f -3/-3/-1 -2/-2/-1 -1/-1/-1")
+    path = folder / "relative.obj"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
 def _seams(folder: Path) -> Path:
     """Every face with its own three corners (as OBJ UV seams or STL split them): merged back to 642."""
     tri = ICO.vertices[ICO.faces].reshape(-1, 3) * 1e12
@@ -104,12 +118,12 @@ MESHES = [  # (id, builder, vertices, faces)
     ("stl-scale-1e12", _written(".stl", 1e12), 642, 1280),
     ("obj-shift-1e9", _written(".obj", 1.0, 1e9), 642, 1280),
     ("ply-shift-1e9", _written(".ply", 1.0, 1e9), 642, 1280),
-    ("obj-scale-1e300", _written(".obj", 1e300), 642, 1280),
-    ("ply-span-3e308-wider-than-float", _written(".ply", 1.5e308), 642, 1280),
+    ("obj-scale-0.9e75-below-the-limit", _written(".obj", 0.9e75), 642, 1280),
     ("stl-scale-1e-300", _written(".stl", 1e-300), 642, 1280),
     ("trimesh-obj-scale-1e12", _trimesh_export(".obj", 1e12), 642, 1280),
     ("trimesh-ply-scale-1e11", _trimesh_export(".ply", 1e11), 642, 1280),
     ("split-corners-merged-1e12", _seams, 642, 1280),
+    ("obj-relative-face-indices", _relative, 642, 1280),
 ]
 
 
@@ -117,6 +131,25 @@ MESHES = [  # (id, builder, vertices, faces)
 def test_mesh_loads_intact(tmp_path, build, nv, nf):
     mesh = load_mesh(build(tmp_path))
     assert (len(mesh.vertices), len(mesh.faces)) == (nv, nf)
+
+
+def test_relative_indices_give_the_same_surface(tmp_path):
+    """The relative-index sphere is the sphere: every face the same triangle (a copy scores 0 Chamfer)."""
+    mesh = load_mesh(_relative(tmp_path))
+    got = np.sort(mesh.vertices[mesh.faces].round(12).reshape(-1, 9), axis=0)
+    want = np.sort(ICO.vertices[ICO.faces].round(12).reshape(-1, 9), axis=0)
+    assert np.array_equal(got, want)
+
+
+def test_metrics_near_the_coordinate_limit_are_finite_and_silent(tmp_path, capsys, recwarn):
+    """A mesh just below `MAX_COORDINATE` measures against itself without overflow: a copy at CD 0."""
+    import json
+
+    path = _written(".obj", 0.9e75)(tmp_path)
+    code, err = _cli(["-q", "metrics", str(path), str(path), "--samples", "500", "--json",
+                      "--no-self-intersections"], capsys)
+    assert code == 0 and err == "", err
+    assert not [str(w.message) for w in recwarn.list]
 
 
 def test_merge_vertices_relative_tolerance():
@@ -175,6 +208,12 @@ BAD_MESHES = [  # (id, file name, content, fragment of the message)
     ("off-face-missing-vertex", "m.off", _off(V3, [[0, 1, 9]]), "outside the range"),
     ("off-no-header", "m.off", b"4 2 0\n0 0 0\n", "not an OFF file"),
     ("unsupported-suffix", "m.xyz", b"0 0 0\n", "unsupported mesh format"),
+    ("obj-scale-1e300", "m.obj", _obj(ICO.vertices * 1e300, ICO.faces), "coordinates up to 1e+300"),
+    ("ply-span-3e308-wider-than-float", "m.ply", _ply_ascii(ICO.vertices * 1.5e308, ICO.faces),
+     "at most 1e+75 are supported"),
+    ("obj-one-coordinate-past-the-limit", "m.obj", b"v 0 0 0\nv 1 0 0\nv 0 2e75 0\nf 1 2 3\n", "coordinates up to 2e+75"),
+    ("obj-relative-index-before-the-first-vertex", "m.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 -2 -1\n",
+     "line 4: face index -4 reaches before the first v line"),
 ]
 
 
@@ -186,7 +225,7 @@ def _cli(argv, capsys):
 
 
 @pytest.mark.parametrize("name,content,match", [c[1:] for c in BAD_MESHES], ids=[c[0] for c in BAD_MESHES])
-def test_bad_mesh_is_one_line_error(tmp_path, capsys, name, content, match):
+def test_bad_mesh_is_one_line_error(tmp_path, capsys, recwarn, name, content, match):
     good = tmp_path / "good.ply"
     write_mesh(ICO, good)
     bad = tmp_path / name
@@ -194,6 +233,19 @@ def test_bad_mesh_is_one_line_error(tmp_path, capsys, name, content, match):
     code, err = _cli(["-q", "metrics", str(bad), str(good), "--samples", "100"], capsys)
     assert code == 2, err
     assert err.strip().count("\n") == 0 and err.startswith("dmesh metrics: error:") and match in err, err
+    assert not [str(w.message) for w in recwarn.list]  # a warning would be a second line on a terminal
+
+
+def test_a_ground_truth_of_no_area_is_one_line(tmp_path, capsys, recwarn):
+    """As the GT (oriented at load), a mesh whose faces all have zero area is refused before its winding is
+    judged (it once warned about the winding first); as a prediction it scores as empty."""
+    flat = tmp_path / "flat.obj"
+    flat.write_bytes(b"v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n")
+    good = tmp_path / "good.ply"
+    write_mesh(ICO, good)
+    code, err = _cli(["-q", "metrics", str(good), str(flat), "--samples", "100"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "no face has a positive area" in err, err
+    assert not [str(w.message) for w in recwarn.list]
 
 
 def test_header_checks_pass_the_shared_formats(tmp_path):
@@ -251,11 +303,19 @@ BAD_POINTS = [  # (id, suffix, builder, fragment of the message)
     ("ply-points-no-vertex-element", ".ply", _bytes(b"ply\nformat ascii 1.0\nend_header\n"),
      "no 'vertex' element"),
     ("ply-points-garbage", ".ply", _bytes(b"\x00ply" + bytes(range(256))), "not a PLY file"),
+    ("xyz-comments-only", ".xyz", _bytes(b"# a header and nothing else\n"), "no points"),
+    ("npy-coordinates-1e300", ".npy", _npy(PTS * 1e300), "coordinates up to"),
+    ("npy-points-on-a-line", ".npy", _npy(np.c_[np.linspace(0, 1, 3000), np.zeros((3000, 2))]),
+     "all 3000 points lie on one line"),
+    ("npy-points-on-a-slanted-line", ".npy", _npy(np.linspace(0, 1, 500)[:, None] * [[1.0, 2.0, -3.0]] + 7),
+     "lie on one line"),
+    ("npy-zero-length-normals", ".npy", _npy(np.c_[PTS, np.r_[np.zeros((2, 3)), PTS[2:]]]),
+     "2 normals have zero length"),
 ]
 
 
 @pytest.mark.parametrize("suffix,build,match", [c[1:] for c in BAD_POINTS], ids=[c[0] for c in BAD_POINTS])
-def test_bad_points_is_one_line_error(tmp_path, capsys, suffix, build, match):
+def test_bad_points_is_one_line_error(tmp_path, capsys, recwarn, suffix, build, match):
     src = tmp_path / f"in{suffix}"
     build(src)
     out = tmp_path / "out.obj"
@@ -263,6 +323,7 @@ def test_bad_points_is_one_line_error(tmp_path, capsys, suffix, build, match):
     assert code == 2, err
     assert err.strip().count("\n") == 0 and match in err, err
     assert not out.exists() and not list(tmp_path.glob("*.json"))
+    assert not [str(w.message) for w in recwarn.list]  # a warning would be a second line on a terminal
 
 
 # ------------------------------------------------------------------------------ full-precision outputs

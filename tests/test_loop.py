@@ -107,7 +107,7 @@ def test_a_resumed_runs_total_counts_its_interrupted_attempt(tmp_path):
     path = tmp_path / "state.pt"
     with pytest.raises(Interrupt):
         _toy(path, interrupt_at=5)
-    saved = torch.load(path, weights_only=False)["timings"]
+    saved = torch.load(path, weights_only=True)["timings"]
     assert saved["total"] > 0 and saved["total_cpu"] >= 0   # the state carries the time up to its save
     resumed, _ = _toy(path)
     assert resumed.earlier_seconds == saved["total"]        # (the toy has no probe)

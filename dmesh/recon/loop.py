@@ -22,7 +22,8 @@ The resumable state is one torch file (`save_state`: written under a temporary n
 fingerprint of the input and config, the position (e.g. phase and next step), the points, weights and
 reals, the optimiser's state (None at a phase's step 0, where a fresh optimiser starts), the history, the
 timings and the procedure's own entries (its RNG state, ...). `load_state` ignores a state of another
-fingerprint, and an unreadable one with a warning. The callback also hears {"stage": name} when the
+fingerprint, and an unreadable one with a warning; it reads with torch's weights-only unpickler, allowing
+only the state's own types (`state_types`), and refuses a file that names any other (no data file runs code). The callback also hears {"stage": name} when the
 procedure starts a stage (`Loop.stage`); the CLI progress bars show it.
 """
 from __future__ import annotations
@@ -32,6 +33,7 @@ import functools
 import hashlib
 import logging
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,15 +114,55 @@ def save_state(path, state: dict) -> None:
     os.replace(tmp, path)
 
 
+def state_types() -> list:
+    """The types a state holds beyond tensors and Python's plain values: the probability pass's caches
+    (`ProbabilityState` and its parts, with their NumPy arrays). `load_state` allows these and no other to
+    torch's weights-only unpickler, so a state file cannot run code when it is read (the full unpickler calls
+    whatever a file names: a `__reduce__` that runs a shell command, say)."""
+    from dmesh.candidates import CandidateFaces, NeighbourCache
+    from dmesh.probability import ProbabilityConfig, ProbabilityState, _Coherence
+    from dmesh.wdt import Csr
+
+    reconstruct = np.zeros(1).__reduce__()[0]  # numpy's array rebuilder (numpy._core.multiarray._reconstruct)
+    return [ProbabilityState, ProbabilityConfig, _Coherence, NeighbourCache, CandidateFaces, Csr, reconstruct,
+            np.ndarray, np.dtype, *{type(np.dtype(c)) for c in "?bBhHiIlLqQefdgFDG"}]
+
+
+def read_state(path) -> object | None:
+    """What the state file at `path` holds, read with torch's weights-only unpickler allowing `state_types`;
+    None (with a warning) when it is unreadable, e.g. cut short.
+
+    Raises:
+        ValueError: the file names another type (it was not written by `save_state`, and reading it with the
+            full unpickler could run code): nothing of it is loaded.
+    """
+    import pickle
+
+    try:
+        with torch.serialization.safe_globals(state_types()):
+            state = torch.load(path, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        named = re.search(r"GLOBAL (\S+)", str(exc))
+        if named is None:  # not a pickle the unpickler can follow (garbage bytes): unreadable, ignored
+            log.warning("ignoring unreadable state %s: %s", path, " ".join(str(exc).split())[:200])
+            return None
+        raise ValueError(f"{path}: not a DMesh state (it names {named.group(1)}, which reading could run as "
+                         f"code); delete it or give another file") from None
+    except Exception as exc:  # an unreadable state is ignored, not fatal: the run starts over
+        log.warning("ignoring unreadable state %s: %s", path, " ".join(str(exc).split())[:200])
+        return None
+    return state
+
+
 def load_state(path, fingerprint: str) -> dict | None:
-    """The state at `path` if it is readable and of this fingerprint, else None."""
+    """The state at `path` if it is readable (`read_state`) and of this fingerprint, else None.
+
+    Raises:
+        ValueError: a file that names other types than `state_types` (`read_state`).
+    """
     if path is None or not Path(path).exists():
         return None
-    try:
-        state = torch.load(path, weights_only=False)
-    except Exception as exc:  # an unreadable state is ignored, not fatal: the run starts over
-        log.warning("ignoring unreadable state %s: %s", path, exc)
-        return None
+    state = read_state(path)
     if not isinstance(state, dict) or state.get("fingerprint") != fingerprint:
         log.info("state %s is for another input or config; starting over", path)
         return None
@@ -279,4 +321,4 @@ class Loop:
 
 
 __all__ = ["TRAIN_ALL", "Clock", "Loop", "ReconstructionResult", "deterministic", "fingerprint", "freeze_faces",
-           "load_state", "mesh_mask", "save_state", "timed_probabilities"]
+           "load_state", "mesh_mask", "read_state", "save_state", "state_types", "timed_probabilities"]

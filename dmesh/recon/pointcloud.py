@@ -55,6 +55,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from dmesh.checks import check_coordinates, check_not_a_line
 from dmesh.extract import SurfaceConfig, extract, orient_faces  # extract, orient_faces: re-exported
 from dmesh.geometry import gather
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
@@ -99,6 +100,8 @@ def check_points(points, normals=None) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f"all {len(pts)} points are identical")
     if distinct < MIN_POINTS:
         raise ValueError(f"need at least {MIN_POINTS} distinct points, got {distinct}")
+    check_coordinates(pts, "the point cloud")
+    check_not_a_line(pts, "the point cloud")
     nrm = None
     if normals is not None:
         nrm = np.asarray(normals, dtype=np.float64)
@@ -107,6 +110,9 @@ def check_points(points, normals=None) -> tuple[np.ndarray, np.ndarray | None]:
         if not np.isfinite(nrm).all():
             raise ValueError("normals contain NaN or inf")
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        if not (length > 0).all():  # a zero vector has no direction to normalise to
+            raise ValueError(f"{int((length <= 0).sum())} of {len(nrm)} normals have zero length (give a direction "
+                             f"at every point, or no normals)")
         nrm = nrm / np.maximum(length, DIVISION_FLOOR)
     return pts, nrm
 
@@ -320,7 +326,8 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     Returns:
         `PointCloudResult`.
     Raises:
-        ValueError: bad points (empty, too few, NaN, all identical) or config.
+        ValueError: bad points (empty, too few, NaN, all identical, on one line, coordinates past
+            `dmesh.tolerances.MAX_COORDINATE`), zero-length normals, or a bad config.
     """
     cfg = config or PointCloudConfig.paper()
     pts_in, nrm_in = check_points(points, normals)

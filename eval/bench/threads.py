@@ -49,7 +49,8 @@ def _in_subprocess(name: str, recipe: str, threads: int) -> dict:
     code = ("import json, sys; from eval.runner import limit_threads; limit_threads(%d); "
             "from eval.bench.threads import _one; print('RESULT ' + json.dumps(_one(%r, %r, %d)))"
             % (threads, name, recipe, threads))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run([sys.executable, "-c", code],  # option-safe: code is written here, after -c
+                         capture_output=True, text=True, check=True).stdout
     return json.loads(next(line for line in out.splitlines() if line.startswith("RESULT "))[7:])
 
 

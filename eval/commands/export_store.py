@@ -22,7 +22,7 @@ def run(args) -> int:
     from eval.export import export_store
 
     db = Path(args.db) if args.db else Path(args.work) / "results.sqlite"
-    out = check_output_file(args.out, "-o", suffixes=(".gz",))
+    out = check_output_file(args.out, "-o", suffixes=(".gz",), inputs=[db])
     if not db.is_file():
         raise FileNotFoundError(f"no results store at {db}: give --work or --db")
     n = export_store(db, out)

@@ -57,7 +57,7 @@ def run(args) -> int:
     if args.steps is not None and args.steps < 1:
         raise ValueError(f"--steps must be at least 1, got {args.steps}")
     check_seed("--seed", args.seed)
-    out = check_output_dir(args.out, "-o")
+    out = check_output_dir(args.out, "-o", inputs=[args.mesh])  # the folder is replaced as a whole
     if out.is_dir() and any(out.iterdir()) and not (out / "result.json").is_file():
         raise ValueError(f"-o {out}: a folder that holds no earlier `dmesh fit` output (no result.json); it "
                          f"would be replaced: choose another -o")

@@ -26,7 +26,9 @@ def run(args) -> int:
         raise FileNotFoundError(f"no store export at {src}: give -i")
     runs = read_export(src)
     total = len(runs)
-    db = Path(args.db) if args.db else Path(args.work) / "results.sqlite"
+    from eval.cli import check_output_file
+
+    db = check_output_file(Path(args.db) if args.db else Path(args.work) / "results.sqlite", "--db", inputs=[src])
     db.parent.mkdir(parents=True, exist_ok=True)
     n = load_export(src, db, mesh_root=args.work, keep_existing=True, runs=runs)
     print(f"loaded {n} runs of {src} into {db} ({total - n} the store already had were kept)")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -58,10 +59,18 @@ def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
     path = Path(path)
 
     def finite(pts, normals):
+        from dmesh.checks import check_coordinates, check_not_a_line
+
         for what, arr in (("points", pts), ("normals", normals)):
             if arr is not None and not np.isfinite(arr).all():
                 bad = int((~np.isfinite(arr).all(axis=1)).sum())
                 raise ValueError(f"{path}: {bad} {what} have NaN or infinite values")
+        check_coordinates(pts, str(path))
+        check_not_a_line(pts, str(path))
+        if normals is not None and not (np.linalg.norm(normals, axis=1) > 0).all():
+            bad = int((np.linalg.norm(normals, axis=1) <= 0).sum())
+            raise ValueError(f"{path}: {bad} normals have zero length (give a direction at every point, or no "
+                             f"normal columns)")
         return pts, normals
 
     if not path.exists():
@@ -79,7 +88,9 @@ def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
                 raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})".splitlines()[0]) from None
         else:
             try:
-                arr = np.loadtxt(path, ndmin=2, comments="#")
+                with warnings.catch_warnings():  # "input contained no data": said below as one line
+                    warnings.simplefilter("ignore", UserWarning)
+                    arr = np.loadtxt(path, ndmin=2, comments="#")
             except Exception as exc:
                 raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})".splitlines()[0]) from None
         kinds = {"c": "complex numbers", "b": "booleans", "O": "Python objects", "U": "text", "S": "text",
@@ -155,14 +166,18 @@ def check_args(args) -> Path:
     check_points("--samples", args.samples)
     if not Path(args.input).exists():
         raise FileNotFoundError(f"{args.input}: no such {'folder' if args.kind == 'multiview' else 'file'}")
-    out = check_output_file(args.out, "-o", (".obj", ".ply", ".off", ".stl"))
-    check_output_file(out.with_name(out.stem + ".timings.json"), "-o")
+    out = check_output_file(args.out, "-o", (".obj", ".ply", ".off", ".stl"), inputs=[args.input])
+    timings = check_output_file(out.with_name(out.stem + ".timings.json"), "-o", inputs=[args.input])
     if args.state is not None:
-        state = check_output_file(args.state, "--state")
+        state = check_output_file(args.state, "--state", inputs=[args.input])
         if state.exists() and not state.is_file():
             raise ValueError(f"--state {state}: not a regular file")
-        if state.resolve() in {Path(args.input).resolve(), out.resolve()}:
-            raise ValueError(f"--state {state}: is the input or the output; give a file of its own")
+        if state.resolve() in {out.resolve(), timings.resolve()}:
+            raise ValueError(f"--state {state}: is an output too; give a file of its own")
+        if state.is_file():  # a file that is not a state is refused here, before any work
+            from dmesh.recon.loop import read_state
+
+            read_state(state)
     return out
 
 
