@@ -45,6 +45,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import sys
 import threading
 from dataclasses import dataclass
@@ -59,7 +60,12 @@ from dmesh.camera import FOV_Y_DEGREES, look_at, perspective, pixel_rays  # noqa
 log = logging.getLogger(__name__)
 
 __all__ = ["MultiView", "capture", "camera_rig", "look_at", "perspective", "pixel_rays", "FOV_Y_DEGREES",
-           "gl_platform", "GLUnavailableError"]
+           "gl_platform", "GLUnavailableError", "CAPTURE_FILES", "foreign_files"]
+
+#: The files a capture folder holds: `MultiView.save`'s and `dmesh capture`'s `capture.json` at the top, and
+#: the previews `images/{diffuse,depth,mask}_K.png`. Anything else there is someone else's (`foreign_files`).
+CAPTURE_FILES = ("views.npz", "cameras.json", "capture.json", "diffuse_grid.png")
+_IMAGE_FILE = re.compile(r"(?:diffuse|depth|mask)_[0-9]+\.png")
 
 #: Elevation range (degrees) whose equal bands' centres are the camera rings.
 ELEVATION_RANGE = (-80.0, 80.0)
@@ -160,14 +166,37 @@ class MultiView:
 
     @classmethod
     def load(cls, directory: str | os.PathLike) -> "MultiView":
-        """Read a capture written by `save` (from its `views.npz`)."""
+        """Read a capture written by `save` (from its `views.npz`).
+
+        Raises ValueError naming the file and the field when the cameras' `fov_y_degrees` or `projection`
+        is not one `save` writes: the projection must be finite and agree with the field of view (square
+        pixels), since the renderers read one and the baselines the other."""
         path = Path(directory) / "views.npz"
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such file (not a capture folder)")
         with np.load(path) as z:
-            return cls(diffuse=z["diffuse"], depth=z["depth"], mask=z["mask"],
-                       world_to_camera=z["world_to_camera"], projection=z["projection"],
-                       fov_y_degrees=float(z["fov_y_degrees"]), resolution=int(z["resolution"]))
+            mv = cls(diffuse=z["diffuse"], depth=z["depth"], mask=z["mask"],
+                     world_to_camera=z["world_to_camera"], projection=z["projection"],
+                     fov_y_degrees=float(z["fov_y_degrees"]), resolution=int(z["resolution"]))
+        problem = mv._camera_problem()
+        if problem:
+            raise ValueError(f"{path}: {problem}")
+        return mv
+
+    def _camera_problem(self) -> str | None:
+        """What is wrong with `fov_y_degrees` and `projection` (None: they agree, as `capture` makes them)."""
+        fov, proj = self.fov_y_degrees, np.asarray(self.projection)
+        if not 0 < fov < 180:  # False for NaN too
+            return f"field 'fov_y_degrees' must be in (0, 180) degrees, got {fov}"
+        if proj.shape != (4, 4):
+            return f"field 'projection' must have shape (4, 4), got {proj.shape}"
+        if not np.isfinite(proj).all():
+            return "field 'projection' holds NaN or infinite values"
+        focal = 1.0 / np.tan(np.radians(fov) / 2.0)
+        if not np.allclose(np.diag(proj)[:2], focal, rtol=1e-6, atol=0.0):
+            return (f"field 'projection' disagrees with fov_y_degrees {fov:g} (its focal terms "
+                    f"{proj[0, 0]:.6g}, {proj[1, 1]:.6g}; expected {focal:.6g} for both)")
+        return None
 
     def _cameras_dict(self) -> dict:
         c2w = self.camera_to_world
@@ -185,6 +214,22 @@ class MultiView:
                        "camera_to_world": c2w[k].tolist(), "eye": c2w[k, :3, 3].tolist()}
                       for k in range(self.views)],
         }
+
+
+def foreign_files(directory: str | os.PathLike) -> list[str]:
+    """The entries of the folder `directory` that no capture writes (paths relative to it, sorted): all but
+    the plain files named in `CAPTURE_FILES` and an `images/` folder holding only preview PNGs. A capture
+    replaces its folder whole, so a folder with any of these must not be replaced (their owner would lose
+    them); [] for an empty folder or an earlier capture."""
+    d = Path(directory)
+    out = []
+    for p in d.iterdir():
+        if p.name == "images" and p.is_dir() and not p.is_symlink():
+            out += [f"images/{q.name}" for q in p.iterdir()
+                    if not (_IMAGE_FILE.fullmatch(q.name) and q.is_file() and not q.is_symlink())]
+        elif not (p.name in CAPTURE_FILES and p.is_file() and not p.is_symlink()):
+            out.append(p.name + ("/" if p.is_dir() else ""))
+    return sorted(out)
 
 
 def _to_u8(img: np.ndarray) -> np.ndarray:

@@ -124,13 +124,29 @@ def check_capture_size(views, resolution, names: tuple[str, str] = ("views", "re
 
 @functools.lru_cache(maxsize=None)
 def _yaml_loader():
-    """PyYAML's safe loader, also reading `1e-3` and `5E+4` as floats (YAML 1.1 needs a dot in them)."""
+    """PyYAML's safe loader, also reading `1e-3` and `5E+4` as floats (YAML 1.1 needs a dot in them) and
+    refusing a key given twice in one mapping (PyYAML keeps the last silently)."""
     import re
 
     import yaml
 
     class Loader(yaml.SafeLoader):
-        pass
+        def construct_mapping(self, node, deep=False):
+            if isinstance(node, yaml.MappingNode):
+                seen = {}
+                for key_node, _ in node.value:
+                    if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *base` keys may repeat a merged key
+                        continue
+                    key = self.construct_object(key_node, deep=True)
+                    try:
+                        first = seen.setdefault(key, key_node.start_mark)
+                    except TypeError:  # an unhashable key: the base class says so
+                        continue
+                    if first is not key_node.start_mark:
+                        raise yaml.constructor.ConstructorError(
+                            None, None, f"duplicate key {key!r} (first on line {first.line + 1})",
+                            key_node.start_mark)
+            return super().construct_mapping(node, deep)
 
     Loader.add_implicit_resolver("tag:yaml.org,2002:float",
                                  re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),

@@ -18,7 +18,8 @@ log = logging.getLogger(__name__)
 def add_arguments(p):
     p.add_argument("mesh", metavar="MESH", help="mesh file (OBJ, PLY, OFF, STL, GLB)")
     p.add_argument("-o", "--out", metavar="DIR", required=True,
-                   help="output folder (created; a previous capture there is replaced)")
+                   help="output folder (created; a previous capture there is replaced, a folder holding other "
+                        "files refused)")
     p.add_argument("--views", type=int, default=64, help="number of cameras (default: 64 = 8 x 8)")
     p.add_argument("--resolution", type=int, default=256, help="image side in pixels (default: 256)")
     p.add_argument("--distance", type=float, default=2.0, help="camera distance from the origin (default: 2.0)")
@@ -47,8 +48,7 @@ def run(args) -> int:
         raise ValueError(f"--distance must be a positive finite number, got {args.distance}")
     check_seed("--seed", args.seed)
     out = check_output_dir(args.out, "-o")
-    if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / "cameras.json").exists())):
-        raise ValueError(f"{out}: exists and is not a capture folder; choose another -o")
+    _check_replaceable(out)
 
     mesh = load_mesh(args.mesh, orient=True)  # an inside-out closed mesh is flipped before rendering
     transform = None
@@ -88,11 +88,27 @@ def run(args) -> int:
     return 0
 
 
+def _check_replaceable(out: Path) -> None:
+    """ValueError (one line) unless `out` is absent, empty or holds only what a capture writes
+    (`datasets.capture.foreign_files`): a capture replaces the whole folder, so it never deletes other files."""
+    from datasets.capture import foreign_files
+
+    if not out.exists():
+        return
+    others = foreign_files(out)
+    if others:
+        shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+        raise ValueError(f"-o {out}: not a capture folder (it holds {shown}, which a capture does not write and "
+                         "replacing the folder would delete); choose another -o")
+
+
 def _replace_dir(tmp: Path, out: Path) -> None:
-    """Rename the finished folder `tmp` to `out`, replacing a previous capture there."""
+    """Rename the finished folder `tmp` to `out`, replacing a previous capture there (checked again, as files
+    may have come while the views rendered)."""
     if not out.exists():
         os.replace(tmp, out)
         return
+    _check_replaceable(out)
     old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
     os.rmdir(old)
     os.replace(out, old)

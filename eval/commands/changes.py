@@ -26,14 +26,28 @@ def add_arguments(p) -> None:
     p.add_argument("--top", type=int, default=10, help="rows printed (default: 10)")
 
 
+def _commit_of(rev: str) -> str:
+    """The commit id `rev` names, verified by `git rev-parse` with `rev` after `--end-of-options`, so a value
+    such as `--output=PATH` is read as a revision (and refused), never as an option of git; ValueError (one
+    line) when it names no commit."""
+    got = subprocess.run(["git", "rev-parse", "--verify", "--quiet", "--end-of-options", f"{rev}^{{commit}}"],
+                         capture_output=True)
+    commit = got.stdout.decode().strip()
+    if got.returncode != 0 or not commit:
+        why = " ".join(got.stderr.decode().split())
+        raise ValueError(f"--since {rev!r}: not a commit of this git repository" + (f" ({why})" if why else ""))
+    return commit
+
+
 def _export_at(rev: str) -> list[dict]:
     """The runs of `reports/store/runs.jsonl.gz` as committed at `rev`."""
     from eval.export import EXPORT_NAME, read_export
 
-    spec = f"{rev}:{(Path('reports') / EXPORT_NAME).as_posix()}"
-    got = subprocess.run(["git", "show", spec], capture_output=True)
+    committed = (Path("reports") / EXPORT_NAME).as_posix()
+    got = subprocess.run(["git", "show", "--end-of-options", f"{_commit_of(rev)}:{committed}"], capture_output=True)
     if got.returncode != 0:
-        raise ValueError(f"--since {rev}: git has no {spec} ({got.stderr.decode().strip() or 'git failed'})")
+        raise ValueError(f"--since {rev}: git has no {rev}:{committed} "
+                         f"({' '.join(got.stderr.decode().split()) or 'git failed'})")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "runs.jsonl.gz"
         path.write_bytes(got.stdout)

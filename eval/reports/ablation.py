@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 from eval.io import write_text
-from eval.reports.tables import FRAME_NOTE, _mean, markdown, num, to_csv
+from eval.reports.tables import FRAME_NOTE, _mean, markdown, md_text, num, to_csv
 
 #: knob -> (the swept coefficient, the one held at 0), output stem, paper table.
 KNOBS = {"weight": ("lambda_weight", "lambda_quality", "ablation_weight", "Table 4"),
@@ -59,7 +59,7 @@ def write_ablations(df, out: str | Path) -> list[Path]:
     written = []
     for knob, (swept, held, stem, paper_table) in KNOBS.items():
         rows = ablation_rows(df, knob)
-        shapes = sorted(set(df[is_ablation(df)]["shape"])) if df is not None and len(df) else []
+        shapes = [md_text(s) for s in sorted(set(df[is_ablation(df)]["shape"]))] if df is not None and len(df) else []
         md = [f"# Ablation: {swept} (like the paper's {paper_table})", "",
               f"DMesh on point clouds, {held} = 0, the other settings from `eval/sweeps/ablation.yaml` (the paper "
               f"preset cut to a CPU budget). Means over the shapes {', '.join(shapes) or '(none yet)'}. "

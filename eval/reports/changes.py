@@ -98,8 +98,9 @@ def _short(version) -> str:
 def changes_markdown(rows: list[dict], counts: dict, metric: str, tolerance: float, before: str,
                      after: str) -> str:
     """The report: what was compared, the counts, and the table of moved configurations."""
-    from eval.reports.tables import markdown
+    from eval.reports.tables import markdown, md_text
 
+    metric, before, after = md_text(metric), md_text(before), md_text(after)  # names from the command line
     lines = [f"# What moved: {metric}, {before} -> {after}", "",
              f"Each configuration's latest finished run in {after} against its latest in {before} "
              f"(`eval.reports.changes`). Listed: {metric} worse or better by more than {tolerance:.0%} "

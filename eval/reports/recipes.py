@@ -81,14 +81,16 @@ def current_code_version(method: str) -> str | None:
 
 def recipe_markdown(rows: list[dict]) -> str:
     """The "DMesh recipes" section of a Table 2 Markdown report ("" without DMesh rows)."""
+    from eval.reports.tables import markdown
+
     if not rows:
         return ""
     out = ["## DMesh recipes", "",
            "Which DMesh rows take gradient steps and which come from an initialisation, and how each recipe "
            "differs from the paper's.", "",
-           "| row | preset | made by | recipe |", "|---|---|---|---|"]
-    out += [f"| {r['method']} | {r['preset']} | {r['kind']} | {r['recipe']} |" for r in rows]
-    return "\n".join(out) + "\n"
+           markdown(rows, [("method", "row", None), ("preset", "preset", None), ("kind", "made by", None),
+                           ("recipe", "recipe", None)])]
+    return "\n".join(out)
 
 
 __all__ = ["recipe_rows", "recipe_markdown", "current_code_version", "made_by_earlier_code", "DMESH_METHODS"]

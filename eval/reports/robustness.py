@@ -494,7 +494,7 @@ NOISE_COLUMNS = [("input", "input", None), ("corruption", "corruption", None), (
 
 def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]], noise=(),
               provenance=()) -> str:
-    from eval.reports.tables import FRAME_NOTE, markdown
+    from eval.reports.tables import FRAME_NOTE, markdown, md_text
 
     cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
             ("corruption", "corruption", None), ("level", "level", None), ("n", "n", 1), ("failed", "failed", 1),
@@ -546,7 +546,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "per class beside a sweep on two) compares them on the shapes all of them ran, named in its title; "
                 "the tables above keep every shape.", ""]
         out += [f"- [{p.name}](figures/{p.name})" for p in figs]
-        out += [f"- [{p.name}](figures/{p.name}): {t}" for t, p in renders]
+        out += [f"- [{p.name}](figures/{p.name}): {md_text(t)}" for t, p in renders]
     out += ["", "_Generated from the results store by `eval.reports.robustness`; do not edit by hand._", ""]
     return "\n".join(out)
 

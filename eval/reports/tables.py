@@ -10,6 +10,7 @@ predictions live in that frame, and metrics are computed there.
 """
 from __future__ import annotations
 
+import html
 import io
 import logging
 import math
@@ -298,13 +299,21 @@ def cell(v, scale: float | None, spec: str | None = None) -> str:
     return format(v * scale, spec) if spec else fmt(v * scale)
 
 
+def md_text(text) -> str:
+    """`text` (a name, a message, any value from data) as literal Markdown text on one line: `&`, `<` and `>`
+    as HTML entities, so that no shape name or error message becomes HTML in a report (a shape file named
+    `<img src=x onerror=...>.obj` shows as that text), and `|` escaped, so that it stays in its table cell."""
+    return html.escape(" ".join(str(text).split()), quote=False).replace("|", "\\|")
+
+
 def markdown(rows: list[dict], columns: list[tuple]) -> str:
-    """A Markdown table; columns are (key, header, scale[, format spec]) with scale None for text."""
-    head = "| " + " | ".join(c[1] for c in columns) + " |\n"
+    """A Markdown table; columns are (key, header, scale[, format spec]) with scale None for text. Every
+    header and cell goes through `md_text`: the one place Markdown cells are formatted."""
+    head = "| " + " | ".join(md_text(c[1]) for c in columns) + " |\n"
     sep = "|" + "|".join("---" if c[2] is None else "---:" for c in columns) + "|\n"
     body = ""
     for r in rows:
-        cells = [cell(r.get(c[0]), c[2], c[3] if len(c) > 3 else None).replace("|", "\\|") for c in columns]
+        cells = [md_text(cell(r.get(c[0]), c[2], c[3] if len(c) > 3 else None)) for c in columns]
         body += "| " + " | ".join(cells) + " |\n"
     return head + sep + body
 
@@ -331,7 +340,7 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
     if any(r.get("normal_consistency_oriented") is not None for r in rows):
         cols.append(("normal_consistency_oriented", "oriented NC", 1))
     cols += [("paper_cd_l1", "paper CD (x1e-3)", 1e3, ".2f"), ("paper_time_s", "paper time (s)", 1, ".2f")]
-    out = [f"# {title or f'Table 2 ({label} input): Chamfer distance and time by class'}", "",
+    out = [f"# {md_text(title) if title else f'Table 2 ({label} input): Chamfer distance and time by class'}", "",
            f"Input: {label}. {FRAME_NOTE} Means over the successful runs of each class (n), with the number of "
            f"failed runs beside them; a failed run has no CD.", "", CD_NOTE, "",
            f"Metric samples per side: N = {n_samples if n_samples else 'see the store'}. Time: the method's "
