@@ -29,11 +29,10 @@ def check_not_a_line(points, what: str) -> None:
     """ValueError when the (N, 3) finite points lie on one line (the second principal extent below `LINE_RATIO`
     of the first): they bound no surface."""
     p = np.asarray(points, np.float64)
-    centred = p - p.mean(axis=0)
-    scale = float(np.abs(centred).max(initial=0.0))
-    if scale == 0.0:
+    if len(p) == 0 or (p == p[0]).all():
         return  # one point repeated: the callers say so in their own words
-    s = np.linalg.svd(centred / scale, compute_uv=False)
+    centred = p - p.mean(axis=0)
+    s = np.linalg.svd(centred / np.abs(centred).max(), compute_uv=False)
     if s[1] <= LINE_RATIO * s[0]:
         raise ValueError(f"{what}: all {len(p)} points lie on one line (no surface to reconstruct)")
 

@@ -233,6 +233,10 @@ def read_capture(directory: str | Path):
         raise ValueError(f"{d}: not a capture folder (no views.npz; write one with `dmesh capture MESH -o {d}`)")
     try:
         return MultiView.load(d)
+    except ValueError as exc:
+        if str(d / "views.npz") in str(exc):  # MultiView.load's own check, which names the file already
+            raise
+        raise ValueError(f"{d / 'views.npz'}: cannot read ({' '.join(str(exc).split())})") from None
     except Exception as exc:  # numpy and zipfile raise several types for corrupt or incomplete archives
         msg = " ".join(f"{type(exc).__name__}: {exc}".split())
         raise ValueError(f"{d / 'views.npz'}: cannot read ({msg})") from None

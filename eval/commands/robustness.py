@@ -60,7 +60,7 @@ def run(args) -> int:
     runner = RunnerConfig(work=args.work, db=args.db, jobs=args.jobs, executor=args.executor,
                           retry_failed=args.retry_failed, ray_address=args.ray_address,
                           rerun=args.rerun)
-    check_work(args.work, runner.db_path)
+    check_work(args.work, runner.db_path, write=not (args.plan or args.report_only))
     keys = None
     if not args.report_only:
         sweeps = [build_sweep(args, path, strict=False) for path in
