@@ -9,10 +9,13 @@ units of the GT's radius. The NDC-compatible metrics (`cd_l2_ndc`, `f_score`, `n
 rescale so the GT's bounding-box diagonal is 1, as NDC and VoroMesh do. Tables multiply `cd_l1` and `cd_p2s`
 by 1e3 ("x1e-3").
 
-Sampling. `sample(mesh, n, seed)` draws n area-uniform surface points (trimesh). The GT is sampled with
-`seed` and the prediction with `seed + 1`, so a mesh compared with itself shows the sampling floor of the
-sample-based CD (about 5-7e-3 at 1e5 samples on the shared meshes; it shrinks as 1/sqrt(n)), while the
-point-to-surface CD of a mesh against itself is exactly 0.
+Sampling. `sample(vertices, faces, n, seed, side)` draws n area-uniform surface points. Each side ("gt",
+"pred") draws from its own stream, a child of `seed` (`metric_rng`) that no input draws from: inputs are
+sampled from `numpy.random.default_rng(seed)` itself, so a metric sample never repeats an input point's draw
+(it once did: the GT's metric samples fell on the faces of the input points, which favoured methods that keep
+the input points as vertices by up to 15 %). The two sides differ, so a mesh compared with itself shows the
+sampling floor of the sample-based CD (about 5-7e-3 at 1e5 samples on the shared meshes; it shrinks as
+1/sqrt(n)), while the point-to-surface CD of a mesh against itself is exactly 0.
 
 Definitions (P: samples of the prediction, G: samples of the GT; d(x, S): Euclidean distance from x to its
 nearest point of the sample set S; dist(x, M): exact distance from x to the triangles of mesh M):
@@ -70,18 +73,31 @@ def _area(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
 
 
-def sample(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """n area-uniform surface samples.
+#: The metric streams' first spawn-key word ("metric" in ASCII), then one word per side: children of the
+#: seed that no input stream is (`datasets.sampling` and `datasets.corrupt` draw from `default_rng(seed)` and
+#: `default_rng([seed, stage])`, whose spawn keys are empty).
+METRIC_STREAM = 0x6D6574726963
+SIDES = {"gt": 0, "pred": 1}
+
+
+def metric_rng(seed: int, side: str) -> np.random.Generator:
+    """The Generator of one side's metric samples for `seed`: independent of every input draw of any seed."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(METRIC_STREAM, SIDES[side])))
+
+
+def sample(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int,
+           side: str = "gt") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n area-uniform surface samples from the metric stream of `side` ("gt" or "pred") for `seed`.
 
     Args:
         vertices: (V, 3) float64; faces: (F, 3) int64 with positive total area.
-        n: number of samples; seed: seed of a NumPy Generator.
+        n: number of samples; seed: the metric seed; side: whose samples (`metric_rng`).
 
     Returns:
         points: (n, 3) float64. face: (n,) int64 the face each sample lies on. normals: (n, 3) float64 unit
         face normals (zero for degenerate faces).
     """
-    rng = np.random.default_rng(seed)
+    rng = metric_rng(seed, side)
     area = _area(vertices, faces)
     face = rng.choice(len(faces), size=n, p=area / area.sum())
     u, w = rng.random(n), rng.random(n)
@@ -133,7 +149,7 @@ def chamfer_l1_samples(pred, gt, n: int = 100_000, seed: int = 0) -> float:
 
     Args:
         pred, gt: trimesh.Trimesh (vertices (V, 3), faces (F, 3)); both mapped into the GT frame first.
-        n: samples per mesh; seed: GT samples use `seed`, prediction samples `seed + 1`.
+        n: samples per mesh; seed: the metric seed (each side its own stream, `metric_rng`).
 
     Returns:
         float, in GT-radius units (unsquared distances, summed over both directions); inf for an empty
@@ -144,8 +160,8 @@ def chamfer_l1_samples(pred, gt, n: int = 100_000, seed: int = 0) -> float:
         return math.inf
     from scipy.spatial import cKDTree
 
-    G, _, _ = sample(gv, gf, n, seed)
-    P, _, _ = sample(pv, pf, n, seed + 1)
+    G, _, _ = sample(gv, gf, n, seed, "gt")
+    P, _, _ = sample(pv, pf, n, seed, "pred")
     d_gp, _ = cKDTree(P).query(G, workers=-1)
     d_pg, _ = cKDTree(G).query(P, workers=-1)
     return float(d_gp.mean() + d_pg.mean())
@@ -169,8 +185,8 @@ def chamfer_l1_p2s(pred, gt, n: int = 100_000, seed: int = 0, backend: str = "au
         return math.inf
     from eval.closest_point import make_index
 
-    G, _, _ = sample(gv, gf, n, seed)
-    P, _, _ = sample(pv, pf, n, seed + 1)
+    G, _, _ = sample(gv, gf, n, seed, "gt")
+    P, _, _ = sample(pv, pf, n, seed, "pred")
     d_g, _, _ = make_index(pv, pf, backend).query(G)
     d_p, _, _ = make_index(gv, gf, backend).query(P)
     return float(d_g.mean() + d_p.mean())
@@ -185,8 +201,8 @@ def _sample_metrics(pv, pf, gv, gf, n, seed, threshold):
     """All sample-based figures from one pair of sample sets (see `compute_metrics` for the keys)."""
     from scipy.spatial import cKDTree
 
-    G, _, nG = sample(gv, gf, n, seed)
-    P, _, nP = sample(pv, pf, n, seed + 1)
+    G, _, nG = sample(gv, gf, n, seed, "gt")
+    P, _, nP = sample(pv, pf, n, seed, "pred")
     d_gp, i_gp = cKDTree(P).query(G, workers=-1)
     d_pg, i_pg = cKDTree(G).query(P, workers=-1)
     k = _ndc_scale(gv)
@@ -567,7 +583,7 @@ def compute_metrics(pred, gt, n: int = 100_000, seed: int = 0, self_intersection
         pred: trimesh.Trimesh prediction (may be empty: flagged, not an error). gt: trimesh.Trimesh with
             positive area. Both must have finite vertices (ValueError otherwise). A `gt.metadata["orientation"]`
             of "flipped" (set by `load_mesh(..., orient=True)`) is reported as the GT's orientation.
-        n: area-uniform samples per mesh (GT with `seed`, prediction with `seed + 1`).
+        n: area-uniform samples per mesh (each side from its own stream of `seed`, `metric_rng`).
         self_intersections: count self-intersecting faces of the prediction (pymeshlab).
         re_fp_vertices: when the prediction's first K vertices are the GT's vertices in order (mesh to
             DMesh), K; adds the `re_fp` keys ("re", "fp", ...). None: no RE/FP.

@@ -307,3 +307,43 @@ def test_grid_of_small_cases(rng):
             d, _, _ = closest_point(q, base, faces[:f], k=k)
             dn, _, _ = closest_point_naive(q, base, faces[:f])
             np.testing.assert_allclose(d, dn, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------ independent streams
+
+def _faces_of(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """The face each surface point lies on (its closest face)."""
+    return trimesh.proximity.closest_point(mesh, points)[2]
+
+
+@pytest.mark.parametrize("input_seed", [0, 1, 2, 3])
+def test_metric_samples_share_no_draw_with_the_input(input_seed):
+    """The i-th metric sample of either side lies on the i-th input point's face no more often than chance
+    (sum of squared face probabilities), for the runner's metric seed 0 and for the input's own seed. The GT
+    side once drew from the input's own stream: the same face every time (the prediction side, seed + 1,
+    repeated the input of seed + 1)."""
+    from datasets.sampling import sample_points
+    from eval.metrics import sample
+
+    mesh = trimesh.creation.icosphere(2)
+    n = 4000
+    pts, _ = sample_points(mesh, n, seed=input_seed)
+    on = _faces_of(mesh, pts.astype(np.float64))
+    area = mesh.area_faces / mesh.area
+    chance = float((area ** 2).sum())  # about 1 / 320 on the sphere
+    for metric_seed in {0, input_seed, max(input_seed - 1, 0)}:
+        for side in ("gt", "pred"):
+            _, face, _ = sample(np.asarray(mesh.vertices), np.asarray(mesh.faces), n, metric_seed, side)
+            same = float((face == on).mean())
+            assert same < 4 * chance + 0.005, (metric_seed, side, same, chance)
+
+
+def test_metric_sides_differ_and_repeat():
+    from eval.metrics import sample
+
+    mesh = trimesh.creation.icosphere(1)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    gt, _, _ = sample(v, f, 100, 5, "gt")
+    assert np.array_equal(gt, sample(v, f, 100, 5, "gt")[0])       # the same seed, the same samples
+    assert not np.allclose(gt, sample(v, f, 100, 5, "pred")[0])    # the two sides apart
+    assert not np.allclose(gt, sample(v, f, 100, 6, "gt")[0])      # and the seeds

@@ -21,7 +21,8 @@ def add_arguments(p):
     p.add_argument("pred", metavar="PRED", help="predicted mesh (OBJ, PLY, OFF, STL, GLB)")
     p.add_argument("gt", metavar="GT", help="ground-truth mesh")
     p.add_argument("--samples", type=int, default=100_000, help="surface samples per mesh (default: 100000)")
-    p.add_argument("--seed", type=int, default=0, help="sampling seed (GT: seed, prediction: seed + 1)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="metric sampling seed (each mesh draws from its own stream of it, never an input's)")
     p.add_argument("--no-self-intersections", action="store_true",
                    help="skip counting self-intersecting faces (the slowest statistic)")
     p.add_argument("--json", action="store_true", help="print one JSON object (non-finite values as null)")
