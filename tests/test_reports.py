@@ -12,9 +12,14 @@ import pytest
 
 from datasets.capture import gl_problem as _gl_problem
 from eval.reports import paper_numbers, tables, write_reports
+from eval.reports.labels import method_label
 from eval.reports.recipes import recipe_markdown, recipe_rows
 from eval.store import Store
 
+
+#: The row names of the point-cloud DMesh presets (`eval.reports.labels`).
+FAST = "dmesh [fast: crust + surface step, no gradient step]"
+PAPER = "dmesh [paper: 1500 gradient steps]"
 
 def _row(key, method, shape, category, status, cd_p2s=None, cd_l1=None, time_s=None, kind="pointcloud", seed=0,
          error=None, metrics=None, info=None):
@@ -96,10 +101,10 @@ def test_table2_shows_cpu_seconds_when_runs_recorded_them(tmp_path):
         s.upsert(_row("c", "psr", "torus", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=2.0))
         df = s.dataframe()
     rows = {r["method"]: r for r in tables.table2(df, "pointcloud")}
-    assert rows["dmesh"]["cpu_s"] == 8.0 and rows["psr"]["cpu_s"] is None
+    assert rows[FAST]["cpu_s"] == 8.0 and rows["psr"]["cpu_s"] is None
     md, csv_path = tables.write_table2(df, tmp_path / "rep", "pointcloud", n_samples=5000)
     text = md.read_text()
-    assert "| time (s) | CPU (s) |" in text and "| dmesh | closed | 2 | 0 | 1.00 | 1.00 | 10.0 | 8.00 |" in text
+    assert "| time (s) | CPU (s) |" in text and f"| {FAST} | closed | 2 | 0 | 1.00 | 1.00 | 10.0 | 8.00 |" in text
     with open(csv_path) as fh:
         assert next(csv.DictReader(fh))["cpu_s"] == "8.0"
 
@@ -255,7 +260,7 @@ def test_size_study_puts_runs_with_steps_on_the_fast_size_curve_and_stays_out_of
     assert rows["plant", "paper preset"]["ratio"] is None
     write_reports(path, tmp_path / "rep", renders=False)
     table2 = list(csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv")))
-    assert sorted(r["method"] for r in table2) == ["dmesh", "dmesh [preset=paper]", "dmesh [preset=paper]"]
+    assert sorted(r["method"] for r in table2) == [FAST, PAPER, PAPER]
     text = (tmp_path / "rep" / "recipes_size.md").read_text()
     assert ("| paper preset | closed | 1 | 5.66 |" in text
             and (tmp_path / "rep" / "figures" / "recipes_size.png").is_file())
@@ -300,14 +305,15 @@ def test_recipe_rows_name_preset_kind_and_overrides():
         {"method": "dmesh_mv", "config_label": "preset=depth", "input_kind": "multiview"},
     ]).assign(status="done")
     rows = {r["method"]: r for r in recipe_rows(df, "pointcloud")}
-    assert set(rows) == {"dmesh", "dmesh [preset=paper]", "dmesh [lr=1e-05,preset=paper]"}
-    assert rows["dmesh"]["preset"] == "fast" and rows["dmesh"]["kind"] == "initialisation"
-    assert rows["dmesh [preset=paper]"]["kind"] == "gradient steps"
-    assert rows["dmesh [lr=1e-05,preset=paper]"]["recipe"].endswith("Overrides: lr=1e-05.")
+    assert set(rows) == {FAST, PAPER, "dmesh [paper: 1500 gradient steps; lr=1e-05]"}
+    assert rows[FAST]["preset"] == "fast" and rows[FAST]["kind"] == "initialisation"
+    assert rows[PAPER]["kind"] == "gradient steps"
+    assert rows["dmesh [paper: 1500 gradient steps; lr=1e-05]"]["recipe"].endswith("Overrides: lr=1e-05.")
     mv = recipe_rows(df, "multiview")
-    assert [(r["method"], r["kind"]) for r in mv] == [("dmesh [preset=depth]", "initialisation")]
+    assert [(r["method"], r["kind"]) for r in mv] == [(method_label("dmesh_mv", "preset=depth", "multiview"),
+                                                       "initialisation")]
     md = recipe_markdown(mv)
-    assert md.startswith("## DMesh recipes") and "| dmesh [preset=depth] | depth | initialisation |" in md
+    assert md.startswith("## DMesh recipes") and f"| {method_label('dmesh_mv', 'preset=depth', 'multiview')} | depth | initialisation |" in md
     assert recipe_markdown([]) == "" and recipe_rows(df.iloc[:0], "pointcloud") == []
 
 
@@ -325,7 +331,7 @@ def test_curves_figure_from_stored_run_info(tmp_path):
          "shape": "torus", "category": "closed", "info": {"curve": curve[:1]}},  # one point: no line
     ])
     runs = curve_runs(df)
-    assert [(r["label"], r["shape"]) for r in runs] == [("dmesh [preset=paper]", "torus")]
+    assert [(r["label"], r["shape"]) for r in runs] == [(PAPER, "torus")]
     from eval.reports.curves import _x
 
     assert _x(curve) == [50, 100, 150]
@@ -351,11 +357,13 @@ def test_multiview_table_shows_dmesh_mv_as_dmesh(tmp_path):
         s.upsert(row("c", "dmesh", "pointcloud", 3e-3))
         df = s.dataframe()
     mv = {r["method"]: r for r in tables.table2(df, "multiview")}
-    assert set(mv) == {"dmesh", "tsdf"} and mv["dmesh"]["cd_p2s"] == 2e-3
-    assert mv["dmesh"]["paper_cd_l1"] is not None   # the paper's "Ours" row sits beside it
-    assert [r["method"] for r in tables.table2(df, "pointcloud")] == ["dmesh"]
+    fast = method_label("dmesh_mv", "", "multiview")
+    assert fast == "dmesh [fast: 510 gradient steps]"  # dmesh_mv shows as dmesh
+    assert set(mv) == {fast, "tsdf"} and mv[fast]["cd_p2s"] == 2e-3
+    assert mv[fast]["paper_cd_l1"] is None   # the paper's "Ours" figures stand beside the paper preset only
+    assert [r["method"] for r in tables.table2(df, "pointcloud")] == [FAST]
     md, _ = tables.write_table2(df, tmp_path / "rep", "multiview")
-    assert "dmesh_mv" not in md.read_text() and "| dmesh |" in md.read_text()
+    assert "dmesh_mv" not in md.read_text() and f"| {fast} |" in md.read_text()
 
 
 def test_multiview_settings_study_leaves_table2_for_its_own_report(tmp_path):
@@ -384,7 +392,8 @@ def test_multiview_settings_study_leaves_table2_for_its_own_report(tmp_path):
     assert "| torus | closed | refine_seeds=[1000, 6000],steps_phase1=[150, 150, 150] |" in md.read_text()
     write_reports(tmp_path / "s.sqlite", tmp_path / "all", renders=False)
     table2 = (tmp_path / "all" / "table2_multiview.md").read_text()
-    assert "refine_seeds" not in table2 and "| dmesh [preset=depth] | closed |" in table2
+    assert "refine_seeds" not in table2 and "| dmesh [depth: crust of the lifted depth pixels + surface step, no " \
+        "gradient step] | closed |" in table2
     assert (tmp_path / "all" / "multiview_fast.md").is_file()
     assert write_mv_settings(df[df["key"] != "c"], tmp_path / "none") == []
 
@@ -406,8 +415,8 @@ def test_recipe_rows_say_when_runs_are_older_than_the_recipe():
          "status": "running"},
     ])
     rows = {r["method"]: r for r in recipe_rows(df, "pointcloud")}
-    assert "earlier code" not in rows["dmesh"]["recipe"]
-    assert rows["dmesh [preset=paper]"]["recipe"].endswith(
+    assert "earlier code" not in rows[FAST]["recipe"]
+    assert rows[PAPER]["recipe"].endswith(
         "(1 of its 2 runs were made by earlier code of the method, which may predate part of this recipe.)")
     one = recipe_rows(df.iloc[2:], "pointcloud")[0]["recipe"]
     assert one.endswith("(its one run was made by earlier code of the method, which may predate part of this recipe.)")

@@ -13,7 +13,10 @@ import pytest
 
 from eval.export import EXPORT_NAME, export_store, keep_tables, load_export, read_export
 from eval.reports import robustness, write_reports
+from eval.reports.labels import method_label
 from eval.store import Store
+
+FAST = method_label("dmesh", "", "pointcloud")  # the default preset's row
 
 REALISTIC = {"noise": 0.0025, "outliers": 0.01, "scan": 6, "normals": "estimated"}
 
@@ -93,7 +96,7 @@ def test_rows_per_method_class_corruption_and_level(db):
     assert real[0]["level"] == "noise=0.0025,normals=estimated,outliers=0.01,scan=6"
     # the budget config ran on clean input only: no corruption rows; the plain run is not counted
     assert not any(r["method"] == "psr [depth=6]" for r in rows)
-    assert {r["method"] for r in rows} == {"psr", "dmesh", "bpa"}
+    assert {r["method"] for r in rows} == {"psr", FAST, "bpa"}
     bpa = [r for r in rows if r["method"] == "bpa"]
     assert {r["category"] for r in bpa} == {"open"} and len(bpa) == 2
 
@@ -117,12 +120,13 @@ def test_dmesh_ratio_against_the_best_other_method(db):
         s.upsert(_row("b4", "dmesh", "torus", "closed", {"noise": 0.005}, 1e-3, config="preset=noisy,smooth_k=60"))
     ratios = robustness.dmesh_ratios(robustness.robustness_rows(_df(db)))
     at = {x["dmesh"]: x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.005}
-    assert set(at) == {"dmesh", "dmesh [preset=noisy]"}
+    noisy = method_label("dmesh", "preset=noisy", "pointcloud")
+    assert set(at) == {FAST, noisy}
     # DMesh ran on the torus only: psr is compared on the torus alone (5e-3), not on its class mean (6e-3)
-    assert at["dmesh"]["best"] == "psr" and at["dmesh"]["best_cd_p2s"] == pytest.approx(5e-3)
-    assert at["dmesh"]["n"] == 1 and at["dmesh"]["ratio"] == pytest.approx(4e-3 / 5e-3)
-    assert at["dmesh [preset=noisy]"]["ratio"] == pytest.approx(2e-3 / 5e-3)
-    assert robustness._DMESH_PRESET.match("dmesh [init_preset=noisy,preset=depth]")
+    assert at[FAST]["best"] == "psr" and at[FAST]["best_cd_p2s"] == pytest.approx(5e-3)
+    assert at[FAST]["n"] == 1 and at[FAST]["ratio"] == pytest.approx(4e-3 / 5e-3)
+    assert at[noisy]["ratio"] == pytest.approx(2e-3 / 5e-3)
+    assert robustness._DMESH_PRESET.match(method_label("dmesh_mv", "init_preset=noisy,preset=depth", "multiview"))
     r0 = next(x for x in ratios if x["corruption"] == "noise" and x["level"] == 0.0)
     assert r0["dmesh_cd_p2s"] == pytest.approx(1.5e-3) and r0["best"] == "psr"
 
@@ -289,7 +293,7 @@ def test_the_ci_subset_runs_every_method_on_every_corruption_and_each_one_costs_
     assert statuses and set(statuses) == {"done"}
     got = _read_csv(rep / "robustness.csv")
     cd = {(r["method"], r["category"], r["corruption"], r["level"]): float(r["cd_p2s"]) for r in got}
-    methods = {"dmesh": "dmesh [preset=tiny]"}
+    methods = {"dmesh": method_label("dmesh", "preset=tiny", "pointcloud")}
     for name in sweep.methods:
         label = methods.get(name, name)
         kinds = ("depth_noise",) if name == "tsdf" else ("noise", "outliers")
@@ -357,7 +361,7 @@ def test_noise_rows_show_what_the_default_presets_measured_and_chose(db, tmp_pat
 
     table = pd.read_csv(tmp_path / "rep" / "robustness.csv")
     noisy = table[(table["corruption"] == "noise") & (table["level"].astype(str) == "0.005")
-                  & (table["method"] == "dmesh")]
+                  & (table["method"] == FAST)]
     assert list(noisy["components"]) == [3]
     # The multi-view depth start smooths from the pool (preset "fast", pool_k > 0), or with `noisy` before it.
     assert robustness._measured_noise("multiview", {"init_depth": {"noise_ratio": 0.2, "preset": "fast",

@@ -82,7 +82,8 @@ def run(args) -> int:
     df = df[df["key"].isin(keys)]
     rows = []
     for _, d in df.sort_values(["input_kind", "method", "config_label"]).iterrows():
-        rows.append({"method": tables.method_label(d["method"], d["config_label"]), "input": d["input_kind"],
+        rows.append({"method": tables.method_label(d["method"], d["config_label"], d["input_kind"]),
+                     "input": d["input_kind"],
                      "status": d["status"], "cd_p2s": tables.num(d.get("cd_p2s")),
                      "cd_l1": tables.num(d.get("cd_l1")), "faces": tables.num(d.get("faces")),
                      "time_s": tables.num(d.get("time_s")), "peak_memory_mb": tables.num(d.get("peak_memory_mb")),

@@ -263,7 +263,7 @@ def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> lis
                     panels.append((f"input: {settings['views']} views (one shown)", thumb))
             seed0 = g[g["seed"] == first["seed"]]
             for _, r in seed0.sort_values(["method", "config_label"]).iterrows():
-                label = tables.method_label(tables.display_name(r["method"], kind), r["config_label"])
+                label = tables.method_label(r["method"], r["config_label"], kind)
                 mp = resolve_mesh_path(r.to_dict(), db)
                 if r["status"] == "done" and mp is not None and mp.is_file():
                     cd = r.get("cd_p2s")

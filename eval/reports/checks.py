@@ -52,7 +52,7 @@ def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], list[float]]:
         if gap[0] <= ratio:
             continue
         last = gap[1]
-        rows.append({"method": method_label(display_name(r["method"], r["input_kind"]), r["config_label"]),
+        rows.append({"method": method_label(r["method"], r["config_label"], r["input_kind"]),
                      "shape": r["shape"], "category": r["category"], "input_kind": r["input_kind"],
                      "seed": int(r["seed"]), "key": r["key"],
                      "last_step": f"phase {last.get('phase')}, step {last.get('step')}",

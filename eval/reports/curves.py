@@ -29,7 +29,7 @@ def curve_runs(df, input_kind: str = "pointcloud") -> list[dict]:
         if not curve or len(curve) < 2 or key in seen:
             continue
         seen.add(key)
-        out.append({"label": method_label(display_name(r["method"], input_kind), r["config_label"]),
+        out.append({"label": method_label(r["method"], r["config_label"], input_kind),
                     "shape": r["shape"], "category": r["category"], "curve": curve})
     return out
 

@@ -43,7 +43,7 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
     code_now = {m: current_code_version(m) for m in set(sub["method"])}
     rows: dict[str, dict] = {}
     for _, r in sub.iterrows():
-        name = label(r) if label else method_label(display_name(r["method"], r["input_kind"]), r["config_label"])
+        name = label(r) if label else method_label(r["method"], r["config_label"], r["input_kind"])
         row = rows.setdefault(name, {"method": name, "runs": 0, "earlier_code": 0, "earlier_metrics": 0})
         row["runs"] += 1
         if made_by_earlier_code(r, code_now[r["method"]]):

@@ -43,7 +43,7 @@ def recipe_rows(df, input_kind: str) -> list[dict]:
             which = "its one run was" if len(finished) == 1 else f"{older} of its {len(finished)} runs were"
             text += f" ({which} made by earlier code of the method, which may predate part of this recipe.)"
         kind = "gradient steps" if steps else ("initialisation" if steps is not None else "?")
-        rows.append({"method": method_label(display_name(method, input_kind), label), "preset": preset,
+        rows.append({"method": method_label(method, label, input_kind), "preset": preset,
                      "kind": kind, "recipe": text})
     return rows
 

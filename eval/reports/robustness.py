@@ -95,7 +95,7 @@ def _labelled(df):
     named = sub["inputs_json"].map(corruption_of)
     sub["_name"] = named.map(lambda x: x[0])
     sub["_level"] = named.map(lambda x: x[1])
-    sub["_label"] = [method_label(display_name(m, k), c) for m, k, c in
+    sub["_label"] = [method_label(m, c, k) for m, k, c in
                      zip(sub["method"], sub["input_kind"], sub["config_label"])]
     return sub
 
@@ -205,7 +205,7 @@ def budget_rows(df) -> list[dict]:
 #: A DMesh row of the report: the default or a named preset (and, for multi-view, the preset of its point-cloud
 #: start), not a study's other overrides: `dmesh [preset=noisy,smooth_k=60]` is a study, and comparing its best
 #: level with the others' would pick the winner after the fact.
-_DMESH_PRESET = re.compile(r"^dmesh(_mv)?( \[((init_)?preset=[a-z_]+,?)+\])?$")
+_DMESH_PRESET = re.compile(r"^dmesh(_mv)? \[[a-z_]+(: [^;\]]*)?(; init_preset=[a-z_]+)?\]$")
 #: Columns of the DMesh-against-the-best table (Markdown and HTML).
 RATIO_COLUMNS = [("input", "input", None), ("category", "class", None), ("corruption", "corruption", None),
                  ("level", "level", None), ("dmesh", "DMesh", None), ("n", "shapes", None),
@@ -274,7 +274,10 @@ def noise_rows(df) -> list[dict]:
     if df is None or not len(df):
         return []
     sub = _labelled(df)
-    sub = sub[(sub["status"] == "done") & (sub["_label"].isin(("dmesh", "dmesh [preset=depth]")))]
+    from eval.reports.labels import method_label
+
+    defaults = (method_label("dmesh", "", "pointcloud"), method_label("dmesh_mv", "preset=depth", "multiview"))
+    sub = sub[(sub["status"] == "done") & (sub["_label"].isin(defaults))]
     out = []
     for (kind, name), g in sub.groupby(["input_kind", "_name"], sort=True):
         levels = {str(v): v for v in g["_level"]}
@@ -462,7 +465,7 @@ def scan_renders(df, db: Path, work: Path, figdir: Path) -> list[tuple[str, Path
             panels = [("ground truth", figures.cached_render(gt, cache)),
                       (f"input: {len(_points(pc))} scanned points", figures.cached_render(pc, cache, "points"))]
             for (_, r), p in zip(runs.iterrows(), meshes):
-                label = tables.method_label(r["method"], r["config_label"])
+                label = tables.method_label(r["method"], r["config_label"], r["input_kind"])
                 if r["status"] == "done":
                     panels.append((f"{label}\nCD p2s {tables.fmt(float(r['cd_p2s']) * 1e3)}e-3",
                                    figures.cached_render(p, cache)))
@@ -559,7 +562,8 @@ def _provenance(df) -> list[dict]:
     if df is None or not len(df):
         return []
     return provenance_rows(df[is_robustness(df)],
-                           label=lambda r: f"{r['input_kind']}: {method_label(r['method'], r['config_label'])}")
+                           label=lambda r: f"{r['input_kind']}: "
+                                           f"{method_label(r['method'], r['config_label'], r['input_kind'])}")
 
 
 def write_robustness(df, out: str | Path, db: str | Path | None = None, work: str | Path | None = None,

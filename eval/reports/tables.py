@@ -18,6 +18,7 @@ from pathlib import Path
 
 from eval.io import write_text
 from eval.reports import paper_numbers
+from eval.reports.labels import DISPLAY_NAMES, display_name, method_label, preset_of  # noqa: F401 - re-exported
 from eval.sweep import CATEGORIES
 
 log = logging.getLogger(__name__)
@@ -67,18 +68,6 @@ def fmt(v, digits: int = 3) -> str:
     return f"{v:.{decimals}f}"
 
 
-#: Names shown in Table 2 per input kind, where the harness name differs: DMesh is one method in the paper,
-#: registered twice here (`dmesh` for point clouds, `dmesh_mv` for images).
-DISPLAY_NAMES = {"multiview": {"dmesh_mv": "dmesh"}}
-
-
-def method_label(method: str, config_label: str) -> str:
-    return f"{method} [{config_label}]" if config_label else method
-
-
-def display_name(method: str, input_kind: str) -> str:
-    """The name Table 2 of `input_kind` shows for the harness method `method`."""
-    return DISPLAY_NAMES.get(input_kind, {}).get(method, method)
 
 
 def _metric(df, names):
@@ -107,11 +96,13 @@ def table2(df, input_kind: str) -> list[dict]:
     sub = df[(df["input_kind"] == input_kind) & df["status"].isin(["done", "failed"])]
     rows = []
     for (method, clabel), g in sub.groupby(["method", "config_label"], sort=True):
-        paper = paper_numbers.table2_row(method, input_kind)
+        # The paper's DMesh figures stand only beside the preset that runs the paper's procedure.
+        paper = (paper_numbers.table2_row(method, input_kind)
+                 if preset_of(method, clabel) in (None, "paper") else None)
         for cat in [c for c in CATEGORIES if c in set(g["category"])] + sorted(set(g["category"]) - set(CATEGORIES)):
             gc = g[g["category"] == cat]
             done = gc[gc["status"] == "done"]
-            row = {"method": method_label(display_name(method, input_kind), clabel), "category": cat,
+            row = {"method": method_label(method, clabel, input_kind), "category": cat,
                    "n": int(len(done)),
                    "failed": int((gc["status"] == "failed").sum()),
                    "cd_p2s": _mean(done, "cd_p2s"), "cd_l1": _mean(done, "cd_l1"), "time_s": _mean(done, "time_s"),
@@ -254,7 +245,7 @@ def per_shape(df, input_kind: str) -> list[dict]:
     sub = df[df["input_kind"] == input_kind].sort_values(["category", "shape", "method", "config_label", "seed"])
     out = []
     for _, r in sub.iterrows():
-        out.append({"method": method_label(display_name(r["method"], input_kind), r["config_label"]),
+        out.append({"method": method_label(r["method"], r["config_label"], input_kind),
                     "shape": r["shape"],
                     "category": r["category"], "seed": int(r["seed"]),
                     # A report is a snapshot: a run stored as running had not finished when it was written.
