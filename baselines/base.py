@@ -55,6 +55,10 @@ class Inputs:
             removes it once the run's outcome is stored, so only a run whose process died (a killed sweep, a
             stopped machine) finds one, and resumes it. A method that resumed puts the wall seconds of its
             earlier attempts in the "earlier_attempts" stage; "total" includes them.
+        preprocess: what the harness's pre-processing stage did to `points` before the method got them
+            (`eval.preprocess.apply`'s info: "spec", "outliers_removed", "smoothed", ...), or None when it did
+            nothing. The same points and record reach every method of a sweep; a method may adapt its own
+            settings to it (DMesh caps its seeds on smoothed input), never filter again by itself.
     """
 
     points: np.ndarray | None = None
@@ -63,6 +67,7 @@ class Inputs:
     seed: int = 0
     monitor: Any = None
     checkpoint: str | None = None
+    preprocess: dict | None = None
 
 
 @dataclasses.dataclass

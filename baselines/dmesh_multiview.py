@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 
-from baselines.base import Inputs, Stopwatch
+from baselines.base import Inputs, Method, Stopwatch
 from baselines.dmesh_pointcloud import DMeshPointCloud
 
 log = logging.getLogger(__name__)
@@ -26,6 +26,10 @@ class DMeshMultiView(DMeshPointCloud):
         from dmesh.recon.multiview_config import MultiViewConfig
 
         return MultiViewConfig.fast()
+
+    def resolve_config(self, config):
+        """`Method.resolve_config` (the point-cloud method's harness filters are `PointCloudConfig` fields)."""
+        return Method.resolve_config(self, config)
 
     def prepare(self) -> None:
         import dmesh.recon.multiview  # noqa: F401  (imports torch and the native module before timing)

@@ -13,6 +13,11 @@ Flow of `run_sweep(sweep, work, ...)`:
 3. Prepare the inputs of the pending runs once per (shape, input kind, seed), cached beside the GT:
    `pc_n<N>_s<seed>.npz` holds `points` (N, 3) float32 and `normals` (N, 3) float32 (area-uniform samples
    of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).
+   A pre-processed input (`"preprocess"` in the settings, `eval.sweep.Sweep.preprocess`) is made once from the
+   raw one by `eval.preprocess.apply` and cached beside it (`<raw>.pre-<spec>-<code>.npz`, with the stages'
+   record), so every method of the sweep gets the same points; a point-cloud method on a multi-view input
+   (`"lift"`, `Sweep.lift_depth`) gets the capture's lifted depth pixels (`eval.preprocess.lift_depth`,
+   `mv_..._lift<N>_s<seed>-<code>.npz`). The run's info holds the record ("preprocess", "lifted_depth").
 4. Claim each pending run in the store (see "Sharing a store" below) and run it in a worker process (a
    local pool of `jobs` forked processes, each run in its own process so that a per-run timeout or a crash in
    native code cannot take the sweep down; or, with `executor="ray"`, Ray tasks on a local Ray or an existing
@@ -260,6 +265,15 @@ def input_path(work: str | Path, shape: ShapeRef, kind: str, settings: dict, see
     `datasets.corrupt.cache_tag` of its corruption, e.g. `pc_n100000_s0_noise0.005.npz`."""
     from datasets.corrupt import cache_tag
 
+    if "preprocess" in settings:  # beside the raw input it is made from
+        pre = settings["preprocess"]
+        raw = input_path(work, shape, kind, _without(settings, "preprocess"), seed)
+        return raw.with_name(f"{raw.name[:-4] if raw.suffix == '.npz' else raw.name}.pre-{pre['stages']}-"
+                             f"{pre['code'][:8]}.npz")
+    if "lift" in settings:  # beside the capture it is lifted from
+        lift = settings["lift"]
+        capture = input_path(work, shape, kind, _without(settings, "lift"), seed)
+        return capture.with_name(f"{capture.name}_lift{lift['points']}_s{seed}-{lift['code'][:8]}.npz")
     folder = shape_dir(work, shape, settings["radius"])
     tag = cache_tag(settings.get("corruption"))
     if kind == "pointcloud":
@@ -267,6 +281,10 @@ def input_path(work: str | Path, shape: ShapeRef, kind: str, settings: dict, see
     if kind == "multiview":
         return folder / f"mv_v{settings['views']}_r{settings['resolution']}_d{settings['distance']:g}{tag}"
     return folder / "gt.ply"
+
+
+def _without(settings: dict, key: str) -> dict:
+    return {k: v for k, v in settings.items() if k != key}
 
 
 def input_id(spec: RunSpec) -> tuple:
@@ -284,6 +302,9 @@ def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, see
     beside `points` and `normals`), `datasets.corrupt.add_depth_noise` for a multi-view capture."""
     path = input_path(work, shape, kind, settings, seed)
     if path.exists():
+        return path
+    if "preprocess" in settings or "lift" in settings:
+        _prepare_harness_input(shape, gt_path, kind, settings, seed, work, path)
         return path
     from datasets.corrupt import cache_tag
 
@@ -331,14 +352,49 @@ def prepare_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, see
     return path
 
 
+def _prepare_harness_input(shape: ShapeRef, gt_path: Path, kind: str, settings: dict, seed: int, work,
+                           path: Path) -> None:
+    """Writes `path`: the pre-processed points of the input without `"preprocess"` (`eval.preprocess.apply`,
+    with its record as `preprocess_info`), or the lifted depth pixels of the capture without `"lift"`
+    (`eval.preprocess.lift_depth`, record `lift_info`). Points and normals are float32, as every raw input."""
+    from eval import preprocess
+
+    if "preprocess" in settings:
+        raw = prepare_input(shape, gt_path, kind, _without(settings, "preprocess"), seed, work)
+        with np.load(raw) as z:
+            arrays = {k: z[k] for k in z.files}
+        points, normals, info = preprocess.apply(arrays["points"], arrays["normals"], settings["preprocess"]["stages"],
+                                                 is_outlier=arrays.get("is_outlier"))
+        out = {"preprocess_info": np.array(json.dumps(info))}
+        if "lift_info" in arrays:  # pre-processed lifted depth pixels keep the lift's record
+            out["lift_info"] = arrays["lift_info"]
+    else:
+        from datasets.capture import MultiView
+
+        views = MultiView.load(prepare_input(shape, gt_path, kind, _without(settings, "lift"), seed, work))
+        points, normals, info = preprocess.lift_depth(views, int(settings["lift"]["points"]), seed)
+        out = {"lift_info": np.array(json.dumps(info))}
+    out.update(points=np.asarray(points, np.float32), normals=np.asarray(normals, np.float32))
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **out)
+
+
 def load_inputs(spec: RunSpec, gt_path: Path, work: str | Path):
-    """The `baselines.base.Inputs` of a run, read from the cache."""
+    """The `baselines.base.Inputs` of a run, read from the cache. A pre-processed input's record goes to
+    `Inputs.preprocess`, a lifted one's to the attribute `lifted_depth` (the runner puts both in the run's
+    info)."""
     from baselines.base import Inputs
 
     path = input_path(work, spec.shape, spec.input_kind, dict(spec.inputs), spec.seed)
-    if spec.input_kind == "pointcloud":
+    if spec.input_kind == "pointcloud" or "lift" in spec.inputs:
         with np.load(path) as z:
-            return Inputs(points=z["points"], normals=z["normals"], views=None, seed=spec.seed)
+            inputs = Inputs(points=z["points"], normals=z["normals"], views=None, seed=spec.seed)
+            if "preprocess_info" in z.files:
+                inputs.preprocess = json.loads(str(z["preprocess_info"]))
+            if "lift_info" in z.files:
+                inputs.lifted_depth = json.loads(str(z["lift_info"]))
+        return inputs
     if spec.input_kind == "multiview":
         from datasets.capture import MultiView
 
@@ -436,6 +492,11 @@ def execute_run(spec: RunSpec, gt_path: str | Path, work: str | Path, method=Non
         told = {"timings": {k: float(v) for k, v in dict(result.timings).items()},
                 "info": {**_jsonable(dict(result.info or {})), "worker_threads": _threads(),  # the timings' budget
                          "method_cpu_s": cpu_s}}  # CPU seconds of the worker (all threads) in the method
+        # What the harness did to the input before the method (not in the method's time): the same for every
+        # method on this input.
+        for key, record in (("preprocess", inputs.preprocess), ("lifted_depth", getattr(inputs, "lifted_depth", None))):
+            if record is not None:
+                told["info"][key] = _jsonable(record)
         mesh = result.mesh
         if mesh is None or len(mesh.faces) == 0:
             raise ValueError("the method returned an empty mesh")

@@ -30,6 +30,20 @@ and their levels: `datasets.corrupt`). Levels are validated (one-line errors), l
 are dropped, and the canonical dict goes into the input settings as `"corruption"` (so into the run key and the
 input's cache name). A sweep without `variants` keeps the plain settings and run keys.
 
+Pre-processing (`preprocess:`, DESIGN.md 8.5): a list of specs of `eval.preprocess` ("none", "outliers",
+"outliers+smooth", "outliers=3+smooth=60", "autosmooth", ...), e.g. `preprocess: [none, outliers+smooth]`; every
+point-cloud method runs once per spec on the same pre-processed points (the runner prepares them once per
+input). A spec other than "none" goes into the input settings as `"preprocess": {"stages": spec, "code": hash of
+eval.preprocess and what it imports}` (so into the run key and the input's cache name) and into the row's label
+as "+spec" (`psr [+outliers+smooth]`, `psr [depth=9,+outliers]`); "none" keeps the plain settings, keys and
+labels. Methods that take images or meshes run once, unpreprocessed. Default: [none].
+
+Lifted depth (`lift_depth: true`): every point-cloud method also runs on each multi-view input, on its depth
+pixels lifted to points as the multi-view `depth` preset lifts them (`eval.preprocess.lift_depth`); the run's
+input kind stays "multiview" (its rows sit in the multi-view tables), its settings get `"lift": {"points",
+"normals": "estimated", "code"}` and its label the tag "lifted-depth" (`psr [lifted-depth]`). Pre-processing
+specs apply to these points too.
+
 User-given values are checked here for every command: `parse_value` / `parse_sets` read `--set KEY=VALUE`
 values and sweep files as YAML (one loader, which also reads `1e-3` as a number), and `check_seed`,
 `check_points` and `check_capture_size` bound seeds and sizes, saying what a larger value would cost.
@@ -219,9 +233,11 @@ class Sweep:
     data_root: str | None = None              # real meshes' root; None: $DMESH_DATA or ../shared/meshes
     skip_missing: bool = False                # leave out mesh files that do not exist (with a warning)
     variants: tuple[Mapping[str, Any], ...] = ()  # input variants (corruptions, capture sizes); (): inputs as above
+    preprocess: tuple[str, ...] = ("none",)   # point-cloud pre-processing specs (eval.preprocess), one row set each
+    lift_depth: bool = False                  # point-cloud methods also run on each multiview input's lifted depth
 
     def __post_init__(self):
-        for name in ("methods", "shapes", "inputs", "seeds"):
+        for name in ("methods", "shapes", "inputs", "seeds", "preprocess"):
             value = getattr(self, name)
             if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
                 raise TypeError(f"Sweep.{name}: expected a list, got {type(value).__name__} {value!r} "
@@ -261,6 +277,23 @@ class Sweep:
         if len(set(self.methods)) != len(self.methods) or len(set(self.shapes)) != len(self.shapes):
             raise ValueError("Sweep: methods and shapes must not repeat")
         self._check_variants()
+        self._check_preprocess()
+
+    def _check_preprocess(self) -> None:
+        """Validates `preprocess` and `lift_depth`; keeps the canonical specs (`eval.preprocess.parse_spec`)."""
+        from eval.preprocess import parse_spec
+
+        if not self.preprocess:
+            raise ValueError("Sweep.preprocess: expected a non-empty list of specs, e.g. [none, outliers+smooth]")
+        canon = tuple(parse_spec(p, f"Sweep.preprocess[{i}]")[0] for i, p in enumerate(self.preprocess))
+        if len(set(canon)) != len(canon):
+            raise ValueError(f"Sweep.preprocess: a spec repeats once written canonically: {list(canon)}")
+        object.__setattr__(self, "preprocess", canon)
+        if not isinstance(self.lift_depth, bool):
+            raise ValueError(f"Sweep.lift_depth: expected true or false, got {self.lift_depth!r}")
+        if self.lift_depth and "multiview" not in self.inputs:
+            raise ValueError("Sweep.lift_depth: the lifted depth pixels come from the multiview input, which the "
+                             f"sweep does not run (inputs: {', '.join(self.inputs)})")
 
     def _check_variants(self) -> None:
         """Validates `variants` (see `input_variants`); one-line ValueError naming the variant and the key."""
@@ -291,7 +324,7 @@ class Sweep:
     # -- (de)serialisation
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        for k in ("methods", "shapes", "inputs", "seeds"):
+        for k in ("methods", "shapes", "inputs", "seeds", "preprocess"):
             d[k] = list(d[k])
         d["variants"] = [dict(v) for v in self.variants]
         d["configs"] = {m: [dict(c) for c in cs] for m, cs in self.configs.items()}
@@ -636,9 +669,36 @@ def run_key(*, method: str, shape_id: str, gt_hash: str, input_kind: str, input_
     return hashlib.sha256(canonical_json(payload).encode()).hexdigest()
 
 
-def config_label(overrides: Mapping) -> str:
-    """Short label of config overrides: "depth=7,trim=0.1" ("" for the defaults)."""
-    return ",".join(f"{k}={overrides[k]}" for k in sorted(overrides))
+def config_label(overrides: Mapping, tags: tuple[str, ...] = ()) -> str:
+    """Short label of config overrides and the input's harness tags: "depth=7,trim=0.1" ("" for the defaults),
+    then the tags ("lifted-depth", "+outliers+smooth"): "depth=7,+outliers+smooth"."""
+    return ",".join([f"{k}={overrides[k]}" for k in sorted(overrides)] + [t for t in tags if t])
+
+
+def preprocess_version(root: str | Path = REPO) -> str:
+    """The first 16 hex digits of the hash of `eval.preprocess` and the project code it imports: in the input
+    settings of every pre-processed or lifted input, so a change of that code reruns those runs (and only
+    those) and names a new cache file."""
+    return source_hash(module_closure(("eval.preprocess",), str(root)), root)[:16]
+
+
+def harness_inputs(sweep: "Sweep", method, kind: str, settings: Mapping) -> list[tuple[dict, tuple[str, ...]]]:
+    """The inputs `method` gets of one input of `kind` (settings `settings`): [(input settings, label tags)], one
+    per pre-processing spec of the sweep (module docstring); [] when the method does not take that input."""
+    from eval.preprocess import NONE, label, lift_points_default
+
+    if method.input_kind == kind:
+        base, tags = dict(settings), ()
+    elif sweep.lift_depth and kind == "multiview" and method.input_kind == "pointcloud":
+        base = {**settings, "lift": {"points": lift_points_default(), "normals": "estimated",
+                                     "code": preprocess_version()}}
+        tags = ("lifted-depth",)
+    else:
+        return []
+    if method.input_kind != "pointcloud":
+        return [(base, tags)]
+    return [(base if spec == NONE else {**base, "preprocess": {"stages": spec, "code": preprocess_version()}},
+             tags + (label(spec),)) for spec in sweep.preprocess]
 
 
 def build_config(method, overrides: Mapping):
@@ -699,7 +759,8 @@ def expand(sweep: Sweep, shapes: list[ShapeRef] | None = None) -> list[RunSpec]:
         ValueError: an unknown method or shape, or a config key the method does not have.
     """
     methods = [get_method(m) for m in sweep.methods]
-    unused = [m.name for m in methods if m.input_kind not in sweep.inputs]
+    lifted = ("pointcloud",) if sweep.lift_depth else ()
+    unused = [m.name for m in methods if m.input_kind not in sweep.inputs + lifted]
     if unused:
         log.warning("methods %s take no input kind of this sweep (%s); they are skipped",
                     ", ".join(unused), ", ".join(sweep.inputs))
@@ -717,14 +778,14 @@ def expand(sweep: Sweep, shapes: list[ShapeRef] | None = None) -> list[RunSpec]:
         for kind, variant in ((k, v) for k in sweep.inputs for v in sweep.input_variants(k)):
             settings = sweep.input_settings(kind, variant)
             for m in methods:
-                if m.input_kind != kind:
-                    continue
-                for ov, cfg in configs[m.name]:
-                    for seed in sweep.seeds:
-                        ident = dict(method=m.name, shape_id=shape.id, gt_hash=shape.gt_hash, input_kind=kind,
-                                     input_settings=settings, config=cfg, seed=seed)
-                        runs.append(RunSpec(key=run_key(**ident, code_version=versions[m.name]), method=m.name,
-                                            overrides=ov, config=cfg, config_label=config_label(ov), shape=shape,
-                                            input_kind=kind, inputs=settings, seed=seed,
-                                            code_version=versions[m.name], base_key=run_key(**ident, code_version="")))
+                for given, tags in harness_inputs(sweep, m, kind, settings):
+                    for ov, cfg in configs[m.name]:
+                        for seed in sweep.seeds:
+                            ident = dict(method=m.name, shape_id=shape.id, gt_hash=shape.gt_hash, input_kind=kind,
+                                         input_settings=given, config=cfg, seed=seed)
+                            runs.append(RunSpec(key=run_key(**ident, code_version=versions[m.name]), method=m.name,
+                                                overrides=ov, config=cfg, config_label=config_label(ov, tags),
+                                                shape=shape, input_kind=kind, inputs=given, seed=seed,
+                                                code_version=versions[m.name],
+                                                base_key=run_key(**ident, code_version="")))
     return runs

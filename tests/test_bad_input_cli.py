@@ -290,6 +290,20 @@ CASES = [
     case("compare-jobs-0", ["compare", "{d}/mesh.obj", "-o", "{d}/cmp", "--jobs", "0"], "RunnerConfig.jobs"),
     case("demo-unknown-shape", ["demo", "-o", "{d}/demo", "--shape", "nosuch"], "unknown synthetic shape 'nosuch'"),
     case("demo-too-few-points", ["demo", "-o", "{d}/demo", "--points", "5"], "--points: expected at least 10"),
+    # ---- issue 58 item 3: the harness's pre-processing stage
+    case("bench-preprocess-unknown", ["bench", "{d}/ok.yaml", "--preprocess", "none", "denoise"],
+         "unknown pre-processing stage 'denoise'"),
+    case("bench-set-preprocess-string", ["bench", "{d}/ok.yaml", "--set", "preprocess=outliers"],
+         "Sweep.preprocess: expected a list"),
+    case("bench-preprocess-smooth-k-5", ["bench", "{d}/ok.yaml", "--preprocess", "smooth=5"], "k must be an integer"),
+    case("compare-preprocess-unknown", ["compare", "{d}/mesh.obj", "-o", "{d}/cmp", "--preprocess", "outlier"],
+         "unknown pre-processing stage 'outlier'"),
+    case("reconstruct-preprocess-unknown",
+         ["reconstruct", "pointcloud", "{d}/pts.npy", "-o", "{d}/out.obj", "--preprocess", "jet"],
+         "unknown pre-processing stage 'jet'"),
+    case("reconstruct-preprocess-noisy-preset",
+         ["reconstruct", "pointcloud", "{d}/pts.npy", "-o", "{d}/out.obj", "--preset", "noisy", "--preprocess",
+          "smooth"], "replaces the noisy preset's own smoothing"),
 ]
 
 

@@ -49,6 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("sweep", nargs="?", help="sweep YAML file (optional when --methods and --shapes are given)")
     add_sweep_arguments(p, "runs/bench")
     p.add_argument("--report", metavar="DIR", help="also write reports (tables, figures, index.html) into DIR")
+    p.add_argument("--preprocess", nargs="+", metavar="SPEC",
+                   help="pre-processing of every point-cloud method's input, one row set per spec: none, or "
+                        "stages joined by '+' (outliers[=STD], smooth[=K], autosmooth[=K]), e.g. --preprocess none "
+                        "outliers+smooth (default: the sweep's, else none; docs/preprocessing.md)")
 
 
 def build_sweep(args, path=None, strict: bool = True):
@@ -72,6 +76,8 @@ def build_sweep(args, path=None, strict: bool = True):
         d["data_root"] = args.data_root
     if getattr(args, "timeout", None) is not None:
         d["timeout_s"] = float(args.timeout)
+    if getattr(args, "preprocess", None):
+        d["preprocess"] = list(args.preprocess)
     return Sweep.from_dict(d).with_overrides(args.sets or [], strict=strict)
 
 

@@ -29,6 +29,10 @@ def add_arguments(p) -> None:
     p.add_argument("--timeout", type=float, default=1800.0, help="per-run limit in seconds (default: 1800)")
     p.add_argument("--set", action="append", default=[], metavar="METHOD.KEY=VALUE", dest="sets",
                    help="override a method's config, e.g. psr.depth=7; repeatable")
+    p.add_argument("--preprocess", nargs="+", metavar="SPEC", default=["none"],
+                   help="pre-processing of every point-cloud method's input, one row per method and spec: none, or "
+                        "stages joined by '+' (outliers[=STD], smooth[=K], autosmooth[=K]), e.g. --preprocess none "
+                        "outliers+smooth (default: none; docs/preprocessing.md)")
 
 
 def run(args) -> int:
@@ -50,6 +54,10 @@ def run(args) -> int:
         raise ValueError(f"mesh {mesh_path}: unsupported file type; expected one of {', '.join(MESH_SUFFIXES)}")
     check_points("--points", args.points)
     check_seed("--seed", args.seed)
+    from eval.preprocess import parse_spec
+
+    for spec in args.preprocess:
+        parse_spec(spec, "--preprocess")
     out = check_output_dir(args.out, "-o")
     work = out / ".work"
     check_work(work, work / "results.sqlite")
@@ -73,7 +81,7 @@ def run(args) -> int:
     kinds = tuple(k for k in ("pointcloud", "multiview") if any(m.input_kind == k for m in methods))
     sweep = Sweep(name=f"compare {mesh_path.name}", methods=tuple(m.name for m in methods),
                   shapes=(str(mesh_path.resolve()),), inputs=kinds, seeds=(args.seed,), n_points=args.points,
-                  timeout_s=args.timeout).with_overrides(args.sets)
+                  timeout_s=args.timeout, preprocess=tuple(args.preprocess)).with_overrides(args.sets)
     runner = RunnerConfig(work=str(work), jobs=args.jobs)
     summary = run_sweep(sweep, runner)
     keys = set(summary.keys)
@@ -99,7 +107,9 @@ def run(args) -> int:
     figs = render_figures(df, runner.db_path, work, out)
     category = df["category"].iloc[0] if len(df) else "unknown"
     md = [f"# Comparison on {mesh_path.name} ({category})", "",
-          f"{tables.FRAME_NOTE} Point cloud: {args.points} area-uniform samples with normals, seed {args.seed}.",
+          f"{tables.FRAME_NOTE} Point cloud: {args.points} area-uniform samples with normals, seed {args.seed}"
+          + ("." if sweep.preprocess == ("none",) else f"; pre-processing (every point-cloud method alike, the "
+             f"row's +tag): {', '.join(sweep.preprocess)}."),
           "", _gt_line(mesh), "", tables.CD_NOTE, "", tables.markdown(rows, cols), "",
           "## Mesh quality", "", tables.QUALITY_NOTE, "",
           tables.markdown([r for r in rows if r["status"] == "done"], quality_cols), ""]

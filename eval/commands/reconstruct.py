@@ -48,6 +48,11 @@ def add_arguments(p):
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a PointCloudConfig (MultiViewConfig) field (repeatable), e.g. --set num_init=5000")
     p.add_argument("--state", default=None, help="resumable state file (resumed when it matches)")
+    p.add_argument("--preprocess", default="none", metavar="SPEC",
+                   help="point clouds: the harness's pre-processing before DMesh, as `dmesh bench --preprocess` "
+                        "gives it to every method: none (default), or stages joined by '+' (outliers[=STD], "
+                        "smooth[=K], autosmooth[=K]); DMesh's own input filters are then off, as in the benchmark "
+                        "rows (docs/preprocessing.md)")
 
 
 def read_points(path: str | Path, samples: int = 100_000, seed: int = 0):
@@ -164,6 +169,14 @@ def check_args(args) -> Path:
 
     check_seed("--seed", args.seed)
     check_points("--samples", args.samples)
+    from eval.preprocess import NONE, parse_spec
+
+    if parse_spec(args.preprocess, "--preprocess")[0] != NONE:
+        if args.kind != "pointcloud":
+            raise ValueError("--preprocess applies to point clouds only (multi-view input is images)")
+        if args.preset == "noisy":
+            raise ValueError("--preprocess replaces the noisy preset's own smoothing; use --preset fast "
+                             "--preprocess outliers+smooth")
     if not Path(args.input).exists():
         raise FileNotFoundError(f"{args.input}: no such {'folder' if args.kind == 'multiview' else 'file'}")
     out = check_output_file(args.out, "-o", (".obj", ".ply", ".off", ".stl"), inputs=[args.input])
@@ -263,6 +276,7 @@ def run(args) -> int:
     from eval.progress import progress
 
     out = check_args(args)
+    pre = None  # the pre-processing's record (point clouds with --preprocess)
     cfg = build_config(args.kind, args.preset, args.seed, _parse_overrides(args.set), args.steps, args.normals)
     if args.kind == "multiview":
         from dmesh.recon.multiview import reconstruct as reconstruct_views
@@ -276,6 +290,13 @@ def run(args) -> int:
         points, normals = read_points(args.input, args.samples, args.seed)
         if args.normals and normals is None:
             raise ValueError(f"{args.input}: --normals given but the input has no normals")
+        from eval.preprocess import NONE, apply, parse_spec
+
+        if parse_spec(args.preprocess, "--preprocess")[0] != NONE:
+            from baselines.dmesh_pointcloud import harness_config, seeds_for_input
+
+            points, normals, pre = apply(points, normals, args.preprocess)
+            cfg, _ = seeds_for_input(harness_config(cfg), pre)
         total = cfg.steps_phase1 + cfg.steps_phase2
         call = lambda **kw: reconstruct_points(points, normals, cfg, **kw)  # noqa: E731
 
@@ -295,5 +316,7 @@ def run(args) -> int:
     report = {"input": str(args.input), "output": str(out), "preset": args.preset}
     if args.kind == "multiview":
         report["kind"] = "multiview"
+    elif pre is not None:
+        report["preprocess"] = pre
     write_outputs(out, res, cfg, report)
     return 0
