@@ -11,6 +11,9 @@ and parameters always give the identical mesh (same vertex and face arrays).
 - mixed: disjoint components of both kinds (closed bodies with open attachments). Components never share
   vertices, so merging vertices by position keeps them apart and `datasets.meshes.classify` says "mixed".
 
+The families of `datasets.families` (the test split's shapes smooth at the sampling scale: vessel, thin_cup,
+bracket, bracket_hose, tank_pipes; 1.5-2.5M faces each) are registered in `SHAPES` too, by that module.
+
 Shape letters: V vertices, F faces, U x W a parameter grid of vertices.
 The CSG shapes (`genus2`, `csg`) use trimesh booleans with the `manifold3d` engine (harness extra).
 """
@@ -468,3 +471,8 @@ def generate(name: str, seed: int = 0, **params) -> trimesh.Trimesh:
     if name not in SHAPES:
         raise ValueError(f"unknown synthetic shape {name!r}; choose from {', '.join(SHAPES)}")
     return SHAPES[name][1](seed=seed, **params)
+
+
+# The smooth families of the test split register themselves in SHAPES (datasets/families.py); importing them
+# here, after everything they use is defined, makes either import order register them.
+from datasets import families as _families  # noqa: E402,F401
