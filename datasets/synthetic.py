@@ -12,7 +12,7 @@ and parameters always give the identical mesh (same vertex and face arrays).
   vertices, so merging vertices by position keeps them apart and `datasets.meshes.classify` says "mixed".
 
 The families of `datasets.families` (the test split's shapes smooth at the sampling scale: vessel, thin_cup,
-bracket, bracket_hose, tank_pipes; 1.5-2.5M faces each) are registered in `SHAPES` too, by that module.
+bracket, bracket_hose, tank_pipes; 1.6-2.1M faces each) are registered in `SHAPES` too, by that module.
 
 Shape letters: V vertices, F faces, U x W a parameter grid of vertices.
 The CSG shapes (`genus2`, `csg`) use trimesh booleans with the `manifold3d` engine (harness extra).
