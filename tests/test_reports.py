@@ -39,7 +39,7 @@ def store_path(tmp_path):
     with Store(path) as s:
         for r in [
             _row("k1", "psr", "torus", "closed", "done", 1e-3, 7e-3, 2.0),
-            _row("k2", "psr", "sphere", "closed", "done", 3e-3, 9e-3, 4.0),
+            _row("k2", "psr", "genus2", "closed", "done", 3e-3, 9e-3, 4.0),
             _row("k3", "psr", "trefoil", "closed", "failed", error="RuntimeError: boom"),
             _row("k4", "psr", "disc", "open", "done", 20e-3, 30e-3, 1.0),
             _row("k5", "udf_mc", "torus", "closed", "done", 2e-3, 8e-3, 0.5),
@@ -89,6 +89,27 @@ def test_table2_means_counts_and_paper_column(store_path):
     assert [(x["method"], x["category"], x["n"]) for x in mv] == [("tsdf", "closed", 1)]
 
 
+def test_table2_puts_dev_and_test_apart_and_side_by_side(tmp_path):
+    """Runs on dev shapes (Table 2's), test shapes and a user's own each make their own row per method and
+    class, with n, mean and spread over shape-seed runs; the Markdown sets dev and test side by side."""
+    with Store(tmp_path / "s.sqlite") as s:
+        for key, shape, seed, cd in [("a", "torus", 0, 1e-3), ("b", "torus", 1, 3e-3), ("c", "sphere", 0, 5e-3),
+                                     ("d", "csg", 0, 7e-3), ("e", "mine", 0, 9e-3)]:
+            s.upsert(_row(key, "psr", shape, "closed", "done", cd, cd, 1.0, seed=seed))
+        df = s.dataframe()
+    rows = {r["split"]: r for r in tables.table2(df, "pointcloud")}
+    assert set(rows) == {"dev", "test", "other"}
+    assert rows["dev"]["n"] == 2 and math.isclose(rows["dev"]["cd_p2s"], 2e-3)
+    assert math.isclose(rows["dev"]["cd_p2s_sd"], math.sqrt(2) * 1e-3)
+    assert rows["test"]["n"] == 2 and math.isclose(rows["test"]["cd_p2s"], 6e-3)
+    assert rows["other"]["n"] == 1 and rows["other"]["cd_p2s_sd"] is None
+    wide = tables.side_by_side(list(rows.values()))
+    assert len(wide) == 1 and math.isclose(wide[0]["dev_cd_p2s"], 2e-3) and wide[0]["test_n"] == 2
+    md, _ = tables.write_table2(df, tmp_path / "rep", "pointcloud", n_samples=5000)
+    text = md.read_text()
+    assert "## Dev and test side by side" in text and "| psr | closed | 2 | 2.00 | 1.41 | 2 | 6.00 | 1.41 |" in text
+
+
 def test_table2_shows_cpu_seconds_when_runs_recorded_them(tmp_path):
     """CPU seconds: the method's own `total_cpu` timing, else the worker's count in the run's info; the column
     appears once a row has them (means over the done runs that have them)."""
@@ -96,7 +117,7 @@ def test_table2_shows_cpu_seconds_when_runs_recorded_them(tmp_path):
         own = _row("a", "dmesh", "torus", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=10.0)
         own["timings_json"]["total_cpu"] = 7.0
         s.upsert(own)
-        s.upsert(_row("b", "dmesh", "sphere", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=10.0,
+        s.upsert(_row("b", "dmesh", "genus2", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=10.0,
                       seed=1, info={"method_cpu_s": 9.0}))
         s.upsert(_row("c", "psr", "torus", "closed", "done", cd_p2s=1e-3, cd_l1=1e-3, time_s=2.0))
         df = s.dataframe()
@@ -104,7 +125,7 @@ def test_table2_shows_cpu_seconds_when_runs_recorded_them(tmp_path):
     assert rows[FAST]["cpu_s"] == 8.0 and rows["psr"]["cpu_s"] is None
     md, csv_path = tables.write_table2(df, tmp_path / "rep", "pointcloud", n_samples=5000)
     text = md.read_text()
-    assert "| time (s) | CPU (s) |" in text and f"| {FAST} | closed | 2 | 0 | 1.00 | 1.00 | 10.0 | 8.00 |" in text
+    assert "| time (s) | CPU (s) |" in text and f"| {FAST} | closed | dev | 2 | 0 | 1.00 | 0 | 1.00 | 10.0 | 8.00 |" in text
     with open(csv_path) as fh:
         assert next(csv.DictReader(fh))["cpu_s"] == "8.0"
 
@@ -115,12 +136,12 @@ def test_table2_files_raw_csv_and_scaled_markdown(store_path, tmp_path):
     md, csv_path = tables.write_table2(df, tmp_path / "rep", "pointcloud", n_samples=5000)
     with open(csv_path) as fh:
         rows = list(csv.DictReader(fh))
-    assert list(rows[0])[:7] == ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "time_s"]
+    assert list(rows[0])[:8] == ["method", "category", "split", "n", "failed", "cd_p2s", "cd_p2s_sd", "cd_l1"]
     psr_closed = next(r for r in rows if r["method"] == "psr" and r["category"] == "closed")
     assert math.isclose(float(psr_closed["cd_p2s"]), 2e-3) and psr_closed["failed"] == "1"
     assert float(psr_closed["paper_cd_l1"]) == 7.15e-3
     text = md.read_text()
-    assert "| psr | closed | 2 | 1 | 2.00 | 8.00 | 3.00 |" in text     # x1e-3 in the Markdown
+    assert "| psr | closed | dev | 2 | 1 | 2.00 | 1.41 | 8.00 | 3.00 |" in text     # x1e-3 in the Markdown
     assert "x1e-3" in text and "max vertex norm 1" in text and "N = 5000" in text
     assert "| PSR | 7.15 | 26.94 | 67.18 | 10.61 |" in text            # the paper's Table 2, verbatim
     assert "RuntimeError: boom" in text                                # failures are listed, not dropped

@@ -131,6 +131,20 @@ def test_dmesh_ratio_against_the_best_other_method(db):
     assert r0["dmesh_cd_p2s"] == pytest.approx(1.5e-3) and r0["best"] == "psr"
 
 
+def test_dmesh_is_compared_with_the_others_on_the_same_preprocessed_input():
+    """A pre-processed DMesh row meets the best other method on the same pre-processed input, never a raw one."""
+    def row(label, cd):
+        return {"input": "pointcloud", "category": "closed", "corruption": "noise", "level": 0.01,
+                "method": label, "per_shape": {"torus": cd}}
+
+    raw, pre = FAST, method_label("dmesh", "+outliers+smooth", "pointcloud")
+    assert robustness.preprocess_tag(pre) == "+outliers+smooth" and robustness.preprocess_tag(raw) == ""
+    ratios = robustness.dmesh_ratios([row(raw, 4e-3), row("psr", 8e-3), row(pre, 2e-3),
+                                      row("psr [+outliers+smooth]", 1e-3)])
+    got = {r["dmesh"]: (r["best"], r["ratio"]) for r in ratios}
+    assert got == {raw: ("psr", 0.5), pre: ("psr [+outliers+smooth]", 2.0)}
+
+
 def test_budget_rows_hold_configs_and_densities(db):
     rows = robustness.budget_rows(_df(db))
     psr = {(r["config"], r["density"]): r for r in rows if r["method"] == "psr"}

@@ -106,12 +106,12 @@ def summary_text(db, kinds=None, keys=None) -> str:
             continue
         w = max(12, max(len(r["method"]) for r in rows))
         lines.append(f"{kind} input (normalised frame, max |v| = 1; CD x1e-3, means over n done runs)")
-        lines.append(f"{'method':<{w}}  {'class':<7} {'n':>3} {'fail':>4} {'CD p2s':>9} {'CD L1':>9} {'time s':>9}"
-                     f" {'paper CD':>9}")
+        lines.append(f"{'method':<{w}}  {'class':<7} {'split':<5} {'n':>3} {'fail':>4} {'CD p2s':>9} {'CD L1':>9} "
+                     f"{'time s':>9} {'paper CD':>9}")
         for r in rows:
             def c(v, s=1.0):
                 return tables.fmt(v * s) if v is not None else "-"
-            lines.append(f"{r['method']:<{w}}  {r['category']:<7} {r['n']:>3} {r['failed']:>4} "
+            lines.append(f"{r['method']:<{w}}  {r['category']:<7} {r['split']:<5} {r['n']:>3} {r['failed']:>4} "
                          f"{c(r['cd_p2s'], 1e3):>9} {c(r['cd_l1'], 1e3):>9} {c(r['time_s']):>9} "
                          f"{c(r['paper_cd_l1'], 1e3):>9}")
         lines.append("")

@@ -101,8 +101,9 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
                 f"(n) with failures counted; metric samples per side N = {n_samples or 'n/a'}. "
                 f"Shaded columns: the paper's published numbers (its own shapes and GPU), for reference.</p>"]
         if rows:
-            cols = [("method", "method", None), ("category", "class", None), ("n", "n", 1), ("failed", "failed", 1),
-                    ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
+            cols = [("method", "method", None), ("category", "class", None), ("split", "split", None),
+                    ("n", "n", 1), ("failed", "failed", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3),
+                    ("cd_p2s_sd", "sd", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
             if any(r.get("cpu_s") is not None for r in rows):
                 cols.append(("cpu_s", "CPU (s)", 1))
             if any("fscore" in r for r in rows):

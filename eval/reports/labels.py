@@ -28,11 +28,14 @@ def display_name(method: str, input_kind: str) -> str:
 
 
 def overrides_of(config_label: str) -> dict:
-    """The overrides a config label ("depth=7,preset=paper") was made from, values read back as YAML."""
+    """The config overrides a label ("depth=7,preset=paper,+outliers") was made from, values read back as
+    YAML; its pre-processing tag ("+outliers") is not one."""
     import yaml
 
     out = {}
     for item in filter(None, (config_label or "").split(",")):
+        if item.startswith("+"):  # the harness pre-processing the run's input had (`eval.preprocess`)
+            continue
         key, _, value = item.partition("=")
         try:
             out[key] = yaml.safe_load(value)

@@ -213,17 +213,36 @@ RATIO_COLUMNS = [("input", "input", None), ("category", "class", None), ("corrup
                  ("best_cd_p2s", "its CD p2s (x1e-3)", 1e3), ("ratio", "DMesh / best other", 1, ".2f")]
 
 
+#: The harness pre-processing a row's name carries (`eval.preprocess`): the config-label item after "+".
+_PREPROCESS_TAG = re.compile(r"(; |,|\[)(\+[^\],;]+)")
+
+
+def preprocess_tag(label: str) -> str:
+    """The pre-processing a row ran ("+outliers+smooth"), "" for the raw input."""
+    found = _PREPROCESS_TAG.search(label)
+    return found.group(2) if found else ""
+
+
+def _untagged(label: str) -> str:
+    """The row's name without its pre-processing tag."""
+    tag = preprocess_tag(label)
+    return label.replace(f" [{tag}]", "").replace(f"; {tag}", "").replace(f",{tag}", "") if tag else label
+
+
 def dmesh_ratios(rows: list[dict]) -> list[dict]:
-    """Per input kind, class, corruption, level and DMesh preset: DMesh's mean CD p2s against the best mean CD
-    p2s among the other methods, both over the same shapes (those DMesh has a done run on, among methods with
-    a done run on each of them), and their ratio (the issue's goal: within 1.2x of the best; below 1, DMesh is
-    the best). DMesh rows are the default and named presets only (`_DMESH_PRESET`)."""
+    """Per input kind, class, corruption, level, pre-processing and DMesh preset: DMesh's mean CD p2s against the
+    best mean CD p2s among the other methods on the same pre-processed input, both over the same shapes (those
+    DMesh has a done run on, among methods with a done run on each of them), and their ratio (the issue's
+    goal: within 1.2x of the best; below 1, DMesh is the best). DMesh rows are the default and named presets
+    only (`_DMESH_PRESET`)."""
     out, groups = [], {}
     for r in rows:
         if r.get("per_shape"):
-            groups.setdefault((r["input"], r["category"], r["corruption"], str(r["level"])), []).append(r)
-    for (kind, cat, name, _), rs in groups.items():
-        for dm in sorted((r for r in rs if _DMESH_PRESET.match(r["method"])), key=lambda r: r["method"]):
+            key = (r["input"], r["category"], r["corruption"], str(r["level"]), preprocess_tag(r["method"]))
+            groups.setdefault(key, []).append(r)
+    for (kind, cat, name, _, _), rs in groups.items():
+        dmesh_rows = (r for r in rs if _DMESH_PRESET.match(_untagged(r["method"])))
+        for dm in sorted(dmesh_rows, key=lambda r: r["method"]):
             shapes = sorted(dm["per_shape"])
             others = [(sum(r["per_shape"][s] for s in shapes) / len(shapes), r["method"]) for r in rs
                       if not r["method"].startswith("dmesh") and set(shapes) <= set(r["per_shape"])]

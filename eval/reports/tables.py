@@ -29,7 +29,9 @@ CD_NOTE = ("`cd_p2s`: point-to-surface Chamfer L1 (mean distance from samples of
            "mesh's triangles, summed over both directions; no sampling floor; the primary figure). "
            "`cd_l1`: the paper's convention, sample-to-sample Chamfer L1 (mean nearest-sample distance, summed "
            "over both directions) with N samples per side (N in the table notes); it has a sampling floor of "
-           "a few 1e-3. Markdown shows both x1e-3; the CSV holds raw distances.")
+           "a few 1e-3. Both: unsquared distances, the two directions' means summed (no factor 1/2), in the "
+           "frame above; metric samples drawn from streams of their own (metric seed 0), never an input's draw. "
+           "Markdown shows both x1e-3; the CSV holds raw distances.")
 #: Extra per-class means shown when the metrics provide them: (column, candidate metric names).
 OPTIONAL_METRICS = (("fscore", ("fscore", "f_score", "f1", "fscore_0.003")),
                     ("normal_consistency", ("normal_consistency", "nc")),
@@ -48,6 +50,12 @@ QUALITY_NOTE = ("Mesh quality (`eval.metrics.compute_metrics`): *oriented NC* is
                 "*watertight*: every edge has exactly two faces; *NM*: non-manifold edges (more than two "
                 "faces) and vertices (more than one fan of faces); *topology = GT*: same number of connected "
                 "components and same genus as the GT; *self-int.*: faces crossing another face.")
+
+
+SPLIT_NOTE = ("Splits: *dev* is the shapes every constant and preset of the project was chosen on (Table 2's "
+              "12); *test* is shapes no constant was tuned on, run and never tuned (`datasets.splits`); *other* "
+              "is shapes in neither. n counts shape-seed runs; *sd* is the sample standard deviation of CD p2s "
+              "over them.")
 
 
 def text(value) -> str:
@@ -85,15 +93,16 @@ def table2(df, input_kind: str) -> list[dict]:
             time_s, ...).
         input_kind: "pointcloud" or "multiview".
     Returns:
-        rows with method, category, n (done runs), failed, cd_p2s, cd_l1, time_s (means over done runs; None
-        if none), optional fscore / normal_consistency / normal_consistency_oriented means, the
-        `quality_summary` keys, paper_cd_l1 and paper_time_s (None when the paper has no row for the method).
+        rows per method, class and split (`split_column`): method, category, split, n (done runs), failed,
+        cd_p2s, cd_l1, time_s (means over done runs; None if none), cd_p2s_sd (their spread), optional fscore /
+        normal_consistency / normal_consistency_oriented means, the `quality_summary` keys, paper_cd_l1 and paper_time_s (None when the paper has no row for the method).
         Ordered by method, then closed / open / mixed. Runs still running (or pending) make no row: a method
         and class appear once a run of them has finished (done or failed).
     """
     if df is None or len(df) == 0:
         return []
     sub = df[(df["input_kind"] == input_kind) & df["status"].isin(["done", "failed"])]
+    sub = sub.assign(split=split_column(sub))
     rows = []
     for (method, clabel), g in sub.groupby(["method", "config_label"], sort=True):
         # The paper's DMesh figures stand only beside the preset that runs the paper's procedure.
@@ -101,27 +110,59 @@ def table2(df, input_kind: str) -> list[dict]:
                  if preset_of(method, clabel) in (None, "paper") else None)
         for cat in [c for c in CATEGORIES if c in set(g["category"])] + sorted(set(g["category"]) - set(CATEGORIES)):
             gc = g[g["category"] == cat]
-            done = gc[gc["status"] == "done"]
-            row = {"method": method_label(method, clabel, input_kind), "category": cat,
-                   "n": int(len(done)),
-                   "failed": int((gc["status"] == "failed").sum()),
-                   "cd_p2s": _mean(done, "cd_p2s"), "cd_l1": _mean(done, "cd_l1"), "time_s": _mean(done, "time_s"),
-                   "cpu_s": _mean(done, "cpu_s")}
-            for col, names in OPTIONAL_METRICS:
-                s = _metric(done, names)
-                if s is not None:
-                    row[col] = _mean_series(s)
-            row.update(quality_summary(done))
-            row["paper_cd_l1"] = paper.get(cat) if paper else None
-            row["paper_time_s"] = paper.get("time_s") if paper else None
-            rows.append(row)
+            for split in [s for s in SPLITS if s in set(gc["split"])]:
+                gs = gc[gc["split"] == split]
+                done = gs[gs["status"] == "done"]
+                row = {"method": method_label(method, clabel, input_kind), "category": cat, "split": split,
+                       "n": int(len(done)), "failed": int((gs["status"] == "failed").sum()),
+                       "cd_p2s": _mean(done, "cd_p2s"), "cd_p2s_sd": _sd(done, "cd_p2s"),
+                       "cd_l1": _mean(done, "cd_l1"), "time_s": _mean(done, "time_s"), "cpu_s": _mean(done, "cpu_s")}
+                for col, names in OPTIONAL_METRICS:
+                    s = _metric(done, names)
+                    if s is not None:
+                        row[col] = _mean_series(s)
+                row.update(quality_summary(done))
+                row["paper_cd_l1"] = paper.get(cat) if paper else None
+                row["paper_time_s"] = paper.get("time_s") if paper else None
+                rows.append(row)
     return rows
+
+
+#: The splits a table shows, in order: dev (constants chosen there), test (run, never tuned), and "other" for
+#: shapes in neither (a user's own).
+SPLITS = ("dev", "test", "other")
+
+
+def split_column(df):
+    """Each run's split (`datasets.splits.split_of` of its shape; "other" when in neither)."""
+    from datasets.splits import split_of
+
+    return df["shape"].map(lambda shape: split_of(str(shape)) or "other") if len(df) else df["shape"]
+
+
+def side_by_side(rows: list[dict]) -> list[dict]:
+    """`table2` rows as one row per method and class with each split's n, mean CD p2s and its spread."""
+    out: dict[tuple, dict] = {}
+    for r in rows:
+        row = out.setdefault((r["method"], r["category"]), {"method": r["method"], "category": r["category"]})
+        row.update({f"{r['split']}_n": r["n"], f"{r['split']}_cd_p2s": r["cd_p2s"],
+                    f"{r['split']}_cd_p2s_sd": r["cd_p2s_sd"]})
+    return list(out.values())
 
 
 def _mean(df, col):
     if col not in df.columns or len(df) == 0:
         return None
     return _mean_series(df[col])
+
+
+def _sd(df, col):
+    """Sample standard deviation of `col` over the rows (None below two values): the spread over shape-seed
+    runs that a mean is given with."""
+    if col not in df.columns:
+        return None
+    s = df[col].dropna().astype(float)
+    return float(s.std(ddof=1)) if len(s) > 1 else None
 
 
 def _mean_series(s):
@@ -309,8 +350,8 @@ def markdown(rows: list[dict], columns: list[tuple]) -> str:
     return head + sep + body
 
 
-TABLE2_CSV_COLUMNS = ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "time_s", "fscore",
-                      "normal_consistency", "paper_cd_l1", "paper_time_s", "normal_consistency_oriented",
+TABLE2_CSV_COLUMNS = ["method", "category", "split", "n", "failed", "cd_p2s", "cd_p2s_sd", "cd_l1", "time_s",
+                      "fscore", "normal_consistency", "paper_cd_l1", "paper_time_s", "normal_consistency_oriented",
                       "oriented_fraction", "oriented_fraction_min", "oriented_fraction_any_side",
                       "oriented_fraction_any_side_min", "watertight_share", "no_nm_edges_share",
                       "non_manifold_edges", "non_manifold_vertices", "boundary_edges", "topology_match_share",
@@ -320,8 +361,9 @@ TABLE2_CSV_COLUMNS = ["method", "category", "n", "failed", "cd_p2s", "cd_l1", "t
 def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_samples: int | None,
                     title: str | None = None, provenance: list[dict] | None = None) -> str:
     label = {"pointcloud": "point cloud", "multiview": "multi-view"}.get(input_kind, input_kind)
-    cols = [("method", "method", None), ("category", "class", None), ("n", "n", 1), ("failed", "failed", 1),
-            ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
+    cols = [("method", "method", None), ("category", "class", None), ("split", "split", None), ("n", "n", 1),
+            ("failed", "failed", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_p2s_sd", "sd", 1e3),
+            ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
     if any(r.get("cpu_s") is not None for r in rows):
         cols.append(("cpu_s", "CPU (s)", 1))
     if any("fscore" in r for r in rows):
@@ -341,9 +383,15 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
            "with other work, and the CPU time is the better estimate of its time alone.", ""]
     if rows:
         out.append(markdown(rows, cols))
+        splits = [s for s in SPLITS if any(r["split"] == s for r in rows)]
+        out += ["", "## Dev and test side by side", "", SPLIT_NOTE, "",
+                markdown(side_by_side(rows), [("method", "method", None), ("category", "class", None)]
+                         + [c for s in splits for c in ((f"{s}_n", f"{s} n", 1),
+                                                        (f"{s}_cd_p2s", f"{s} CD p2s (x1e-3)", 1e3),
+                                                        (f"{s}_cd_p2s_sd", f"{s} sd", 1e3))])]
         out += ["", "## Mesh quality by class", "", QUALITY_NOTE, "",
-                markdown(rows, [("method", "method", None), ("category", "class", None), ("n", "n", 1)]
-                         + QUALITY_SUMMARY_COLUMNS)]
+                markdown(rows, [("method", "method", None), ("category", "class", None), ("split", "split", None),
+                                ("n", "n", 1)] + QUALITY_SUMMARY_COLUMNS)]
     else:
         out.append(f"_No {label} runs in the store yet._\n")
     if provenance:
