@@ -21,10 +21,10 @@ def test_demo_writes_table_and_meshes(tmp_path):
     assert r.returncode == 0, r.stderr
     out = tmp_path / "out"
     summary = json.loads((out / "demo_summary.json").read_text())
-    assert set(summary["metrics"]) == {"dmesh", "psr"} and summary["class"] == "mixed"
-    assert summary["metrics"]["dmesh"]["faces"] > 0 and summary["metrics"]["psr"]["faces"] > 0
+    assert set(summary["metrics"]) == {"dmesh", "psr", "bpa"} and summary["class"] == "mixed"
+    assert all(m["faces"] > 0 for m in summary["metrics"].values())
     table = (out / "demo_table.md").read_text()
-    assert "| dmesh |" in table and "| psr |" in table
+    assert "| dmesh [tiny: 10 gradient steps; steps_phase2=8] |" in table and "| psr [depth=6] |" in table and "| bpa |" in table
     import trimesh
 
     mesh = trimesh.load(out / "dmesh.obj", process=False)
