@@ -36,6 +36,27 @@ class BandGrid:
     nodes: np.ndarray
 
 
+#: Default cap on grid cells along the longest side: a dense float32 volume of 512^3 is 0.5 GiB, which two runs
+#: on a shared 2-core, 23 GiB machine can hold; 1024^3 (8x) cannot (`marching_cubes` builds the dense volume).
+MAX_RESOLUTION = 512
+
+
+def choose_resolution(points: np.ndarray, spacing: float, resolution: int | None, voxel_spacings: float,
+                      max_resolution: int = MAX_RESOLUTION) -> tuple[int, bool]:
+    """(cells along the longest side of `points`' box, whether the cap bound it).
+
+    `resolution` when given (an explicit grid); else the resolution whose voxel is `voxel_spacings` x
+    `spacing` (the mean nearest-neighbour spacing), at most `max_resolution`.
+    """
+    if resolution is not None:
+        return int(resolution), False
+    if not voxel_spacings > 0 or not spacing > 0:
+        raise ValueError(f"grid: voxel_spacings and the spacing must be positive, got {voxel_spacings}, {spacing}")
+    extent = float((points.max(0) - points.min(0)).max())
+    want = max(8, int(np.ceil(extent / (voxel_spacings * spacing))))
+    return min(want, int(max_resolution)), want > int(max_resolution)
+
+
 def band_grid(points: np.ndarray, resolution: int, band_nodes: int) -> BandGrid:
     """The band grid for `points` (N, 3) float64 with `resolution` cells along the longest box side."""
     from scipy import ndimage

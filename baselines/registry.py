@@ -42,3 +42,8 @@ from baselines.voromesh import VoroMesh  # noqa: E402
 
 for _paper_baseline in (VoroMesh(), FlexiCubes(), NIE()):
     METHODS[_paper_baseline.name] = _paper_baseline
+
+from baselines.decimate import bpa_qem, psr_qem  # noqa: E402  (reconstruct, then quadric edge collapse)
+
+for _decimated in (psr_qem(), bpa_qem()):
+    METHODS[_decimated.name] = _decimated

@@ -13,6 +13,12 @@ With `single_sheet` (default) and normals present, the method does better: it ke
 side the nearest sample's normal points to, and projects their vertices back onto the local tangent plane
 (IMLS of the k nearest samples, normals aligned to the nearest one), giving one open sheet on the surface.
 For a non-orientable input (Mobius strip) the kept side switches at the seam, where a small gap remains.
+Grid (issue 58): voxel = the input's mean nearest-neighbour spacing, at most 512 cells a side, as in
+`sdf_mc` (its docstring and docs/protocol.md give the source and the dev-split cost).
+The iso level is 3 mean spacings (`iso_factor`; at least one voxel): at voxel = spacing, an iso of one
+spacing leaves holes where random samples gap (dev torus 1.55e-3, bowl 1.13e-3 CD p2s), 2 spacings 0.168 /
+0.077, 3 spacings 0.128 / 0.059 (100K points, 20K metric samples); the old grid's iso was one 128th of the box,
+about 3.5 spacings.
 """
 from __future__ import annotations
 
@@ -21,7 +27,7 @@ import logging
 import numpy as np
 
 from baselines.base import Inputs, Method, Stopwatch, check_points, mean_spacing, require
-from baselines.grid import band_grid, imls, marching_cubes
+from baselines.grid import band_grid, choose_resolution, imls, marching_cubes
 
 log = logging.getLogger(__name__)
 
@@ -32,10 +38,12 @@ class UnsignedDistanceMC(Method):
 
     def default_config(self) -> dict:
         return {
-            "resolution": 128,    # grid cells along the longest side of the points' bounding box
+            "resolution": None,   # grid cells along the longest side of the points' box; None: from the spacing
+            "voxel_spacings": 1.0,  # voxel = this x mean NN spacing (protocol: a voxel no larger than the spacing)
+            "max_resolution": 512,  # cap on the automatic resolution (memory: grid.MAX_RESOLUTION)
             "band": 4,            # band half-width in grid nodes (raised to hold the tube of radius iso)
-            "iso": None,          # iso level in input units; None: iso_factor * max(mean NN spacing, voxel)
-            "iso_factor": 1.0,
+            "iso": None,          # iso level in input units; None: max(iso_factor * mean NN spacing, voxel)
+            "iso_factor": 3.0,    # dev split (torus, bowl at voxel = spacing): 1 -> holes, 3 best of {1, 2, 3}
             "single_sheet": True,  # keep one side and project it onto the samples (needs normals)
             "k": 8,               # neighbours for the projection
             "sigma_factor": 1.5,  # projection Gaussian width, as a multiple of max(spacing, voxel)
@@ -53,19 +61,22 @@ class UnsignedDistanceMC(Method):
         with sw.stage("grid"):
             tree = cKDTree(pts)
             h = mean_spacing(pts)
-            voxel = float((pts.max(0) - pts.min(0)).max()) / int(cfg["resolution"])
+            res, capped = choose_resolution(pts, h, cfg["resolution"], float(cfg["voxel_spacings"]),
+                                            int(cfg["max_resolution"]))
+            voxel = float((pts.max(0) - pts.min(0)).max()) / res
             iso = (float(cfg["iso"]) if cfg["iso"] is not None
-                   else float(cfg["iso_factor"]) * max(h, voxel))
+                   else max(float(cfg["iso_factor"]) * h, voxel))
             if not iso > 0:
                 raise ValueError(f"udf_mc: iso must be positive, got {iso}")
             # The band must hold the whole tube of radius iso, with two nodes to spare.
             band = max(int(cfg["band"]), int(np.ceil(iso / max(voxel, 1e-300))) + 2)
-            grid = band_grid(pts, int(cfg["resolution"]), band)
+            grid = band_grid(pts, res, band)
             scale = max(h, grid.voxel)
             udf, _ = tree.query(grid.nodes, k=1, workers=-1)
         with sw.stage("marching_cubes"):
             verts, faces = marching_cubes(grid, udf, iso)
-        info = {"voxel": grid.voxel, "iso": iso, "band_nodes": band, "mean_spacing": h, "single_sheet": False}
+        info = {"voxel": grid.voxel, "resolution": res, "resolution_capped": capped,
+                "iso": iso, "band_nodes": band, "mean_spacing": h, "single_sheet": False}
         if cfg["single_sheet"] and nrm is not None and len(faces):
             with sw.stage("single_sheet"):
                 _, i = tree.query(verts, k=1, workers=-1)

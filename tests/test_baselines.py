@@ -252,7 +252,7 @@ def test_open_surface(bowl):
     # low-density vertices removes most of the blob (12e-3 at quantile 0.3).
     udf = get_method("udf_mc").reconstruct(inputs, {"resolution": 48})
     assert chamfer_l1_p2s(udf.mesh, gt, n=N_METRIC) < 2e-3
-    closed = get_method("psr").reconstruct(inputs, {"depth": 6})
-    trimmed = get_method("psr").reconstruct(inputs, {"depth": 6, "trim_quantile": 0.3})
+    closed = get_method("psr").reconstruct(inputs, {"depth": 6, "trim_depth_offset": None})
+    trimmed = get_method("psr").reconstruct(inputs, {"depth": 6, "trim_depth_offset": None, "trim_quantile": 0.3})
     assert len(trimmed.mesh.faces) < len(closed.mesh.faces)
     assert chamfer_l1_p2s(trimmed.mesh, gt, n=N_METRIC) < 0.5 * chamfer_l1_p2s(closed.mesh, gt, n=N_METRIC)
