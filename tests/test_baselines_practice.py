@@ -236,3 +236,19 @@ def test_decimation_hits_the_face_budget(name, config, sphere):
     # The base method's keys are checked as the base method checks them.
     with pytest.raises(ValueError):
         get_method(name).reconstruct(_cloud(sphere, n=500), {"no_such_key": 1})
+
+
+@needs_pymeshlab
+def test_psr_default_depth_on_a_sparse_cloud_trims_to_what_the_samples_support(sphere, cap):
+    """At the default depth 10 the README's trim value 7 lies above every density 8000 points support (median
+    near 5.5): uncapped it removed every face. Capped at the median - 0.7, the closed sphere stays whole and
+    the open cap loses its closing surface."""
+    psr = get_method("psr")
+    closed = psr.reconstruct(_cloud(sphere))
+    assert closed.info["faces_cut_or_dropped"] == 0 and len(closed.mesh.faces) == closed.info["faces_untrimmed"]
+    sheet = psr.reconstruct(_cloud(cap))
+    untrimmed = psr.reconstruct(_cloud(cap), {"trim_median_margin": None, "trim_depth_offset": None})
+    assert 0.15 < sheet.info["area_trimmed_fraction"] < 0.9
+    assert chamfer_l1_p2s(sheet.mesh, cap, n=N_METRIC) < 0.25 * chamfer_l1_p2s(untrimmed.mesh, cap, n=N_METRIC)
+    uncapped = psr.reconstruct(_cloud(cap), {"trim_median_margin": None})
+    assert len(uncapped.mesh.faces) == 0  # the failure the cap exists for
