@@ -271,5 +271,5 @@ def test_quality_columns_in_table2(tmp_path):
     md, _ = tables.write_table2(df, tmp_path / "rep", "pointcloud")
     text = md.read_text()
     assert ("## Mesh quality by class" in text
-            and "| psr | closed | 2 | 0.590 | 80.0 | 60.0 | 95.0 | 90.0 | 100 | 50 | 50 |" in text)
+            and "| psr | closed | dev | 2 | 0.590 | 80.0 | 60.0 | 95.0 | 90.0 | 100 | 50 | 50 |" in text)
     assert "## Runs: mesh quality" in text and "| 1 (GT 1) | - (GT 1) |" in text
