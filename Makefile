@@ -17,7 +17,7 @@ demo: setup
 	$(PY) -m eval.cli demo -o out
 
 bench: setup
-	$(PY) -m eval.bench all
+	$(PY) -m eval.bench all --quick --out out/bench
 
 reproduce-tables: setup
 	$(PY) -m eval.cli reproduce-tables --jobs 2 -o reports

@@ -11,12 +11,12 @@ from dmesh import repair
 
 
 def test_surface_variants_extract_the_runs_final_dmesh_again():
-    """`eval.bench.surface_variants.extractions` (the `debris` and `lids` benches) wraps the point-cloud run's
+    """`studies.surface_variants.extractions` (the `debris` and `lids` benches) wraps the point-cloud run's
     extraction for the length of one run: a variant without overrides gives the run's own mesh, in the run's
     frame, and a variant's overrides reach its extraction (here the sheet clean-up left out, so a slightly noisy
     sheet keeps the small holes the clean-up fills)."""
     from datasets.corrupt import add_noise
-    from eval.bench.surface_variants import extractions, same_as_run
+    from studies.surface_variants import extractions, same_as_run
 
     gt = normalize(generate("wavy_sheet"))[0]
     pts, nrm = sample_points(gt, 20_000, 0)

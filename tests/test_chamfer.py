@@ -405,9 +405,9 @@ def test_dmesh_chamfer_gradients(rng):
 
 
 def test_loss_floor_bench_gradient_matches_finite_differences_and_plane_has_no_floor():
-    """`eval.bench.loss_floor`'s two-sided distances: gradients against central differences; on a flat patch the
+    """`studies.loss_floor`'s two-sided distances: gradients against central differences; on a flat patch the
     point-to-plane distance of two independent samplings is 0 while the Euclidean one is not (the floor)."""
-    from eval.bench.loss_floor import loss_and_gradient
+    from studies.loss_floor import loss_and_gradient
 
     rng = np.random.default_rng(0)
     t = np.c_[rng.uniform(-1, 1, (400, 2)), np.zeros(400)]

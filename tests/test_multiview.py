@@ -384,13 +384,13 @@ def test_noisy_depth_start_fits_the_subset_from_every_pixel(sphere, sphere_views
 
 
 def test_the_depth_noise_bench_measures_what_the_start_measures(sphere, sphere_views):
-    """`python -m eval.bench depth_noise` (the calibration of DEPTH_NOISY_RATIO) lifts and measures the pixels
+    """`python -m studies depth_noise` (the calibration of DEPTH_NOISY_RATIO) lifts and measures the pixels
     as the start does: on the tests' capture its ratios equal the start's on the same pixels, and its summary
     says whether the threshold separates clean from noisy captures."""
     from datasets.corrupt import add_depth_noise
     from dmesh.recon.multiview import depth_start_preset
     from dmesh.recon.views import check_views, lifted_points
-    from eval.bench import depth_noise
+    from studies import depth_noise
 
     clean, noisy = depth_noise.ratios(sphere, sphere_views.views, sphere_views.resolution, (0.0, 0.005))
     assert clean == pytest.approx(depth_start_preset(lifted_points(check_views(sphere_views)), "auto")[1])

@@ -66,8 +66,12 @@ def markdown_table(rows: list[dict], columns: list[str], formats: dict[str, str]
     return head + body
 
 
+#: The command a report's "Regenerate" line names; `python -m studies` sets it for the studies it runs.
+REGENERATE = "python -m eval.bench"
+
+
 def write_report(out: str | Path, name: str, title: str, intro: str, table: str, rows: list[dict]) -> Path:
-    """Writes reports/<name>.md (with machine info) and reports/<name>.csv."""
+    """Writes <out>/<name>.md (with machine info) and <out>/<name>.csv."""
     import csv
     import io
 
@@ -75,7 +79,7 @@ def write_report(out: str | Path, name: str, title: str, intro: str, table: str,
     info = machine_info()
     machine = ", ".join(f"{k} {v}" for k, v in info.items())
     md = (f"# {title}\n\n{intro}\n\n{table}\nMachine: {machine}.\n\n"
-          f"Regenerate: `python -m eval.bench {name.removeprefix('bench_')}`.\n")
+          f"Regenerate: `{REGENERATE} {name.removeprefix('bench_')}`.\n")
     write_text(out / f"{name}.md", md)
     buf = io.StringIO()
     if rows:
