@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export OMP_NUM_THREADS ?= 2
 
-.PHONY: setup test test-slow demo bench reproduce-tables reproduce-recipes robustness clean
+.PHONY: setup test test-slow demo bench readme reproduce-tables reproduce-recipes robustness clean
 
 setup:
 	@bash tools/setup.sh
@@ -30,3 +30,6 @@ robustness: setup
 
 clean:
 	rm -rf build out .pytest_cache
+
+readme:
+	$(PY) -m eval.reports.readme
