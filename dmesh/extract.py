@@ -15,7 +15,7 @@ Modes, from upstream's to ours:
   tet across each boundary face, against the cluster's normal (its points' direction of least variance).
   Upstream keeps both sheets, so its meshes have many non-manifold edges, and the inner sheet lies farther
   from the surface. Clusters are small (tens of tets at most), so one normal per cluster is enough. The three
-  modes on a first DMesh (faces, non-manifold edges, CD, cluster sizes): `python -m eval.bench extraction_modes`.
+  modes on a first DMesh (faces, non-manifold edges, CD, cluster sizes): `python -m studies extraction_modes`.
 
 The output surface (`surface`, `extract(..., orient=True)`): the faces alone carry no orientation and, at a hole
 or a fin, no clue whether they bound a solid. Both come from the tets instead (`dmesh.solid`): tets are labelled
@@ -139,7 +139,7 @@ def _cluster_normals(points: np.ndarray, tets: np.ndarray, real_tets: np.ndarray
 
 #: `refine`'s density control factor for the lids (`_fair_lids`): CGAL's default, sqrt(2), leaves lids across
 #: a large hole with few new vertices there (their scale is the lid's own long edges), so the fair surface
-#: stays close to the flat lid; `python -m eval.bench lids` compares factors.
+#: stays close to the flat lid; `python -m studies lids` compares factors.
 LID_DENSITY = 4.0
 
 

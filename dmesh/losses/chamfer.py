@@ -228,7 +228,7 @@ class ExpectedChamfer:
         lambda_normal: weight of the normal term (Eq. 13); 0 disables it.
         tangent_weight: 1 (the paper): Euclidean distances; below 1 (needs target normals; not upstream): the
             tangential part of each offset, relative to the target point's normal, is scaled by it, which lowers
-            the loss's sampling floor (`python -m eval.bench loss_floor`).
+            the loss's sampling floor (`python -m studies loss_floor`).
         k_normal: target neighbours searched per sample when the normal term is on.
         k_first: neighbours every target row takes first; only the rows that keep more than `mass_tol` of
             probability beyond them take the full K (0, or at least K: every row takes K, as upstream). Not

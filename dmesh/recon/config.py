@@ -218,7 +218,7 @@ class PointCloudConfig(Presets):
         comes out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face and `FRAGMENTED_RIM` times
         the square root of its face count, noise that `noise_ratio` missed) is run again smoothed
         (`redo_fragmented`). Why each choice: docs/preset_choices.md; why no
-        phase-1 step: `python -m eval.bench recipes`."""
+        phase-1 step: `python -m studies recipes`."""
         base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=FAST_SEEDS, voronoi="poles",
                     smoothed_seeds=SMOOTHED_SEEDS, redo_fragmented=FRAGMENTED_BOUNDARY,
                     carve=5.0, max_voronoi=None,

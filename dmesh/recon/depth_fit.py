@@ -28,7 +28,7 @@ them). Copies of one point (`groups`: the surface step splits a vertex where she
 sheet, 5 % of an edge apart, `dmesh.repair.separate_copies`) share one offset along one axis, that of the
 mesh with the copies joined: fitted one by one, each moved along its own sheet's normal, up to `max_offset`,
 far more than the copies' separation, and the sheets that met there crossed each other
-(`python -m eval.bench depth_fit_copies`). Written here because no mesh library offers a least-squares fit
+(`python -m studies depth_fit_copies`). Written here because no mesh library offers a least-squares fit
 of a mesh to depth maps.
 """
 from __future__ import annotations
@@ -195,7 +195,7 @@ def undo_crossings(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, axes:
 
     Why: a copy group moves rigidly, but the other vertices of the tiny pieces that meet at it do not, so a
     fit of up to `max_offset` can push one piece through its neighbour where the mesh was folded tight.
-    Halving keeps as much of the fit as the crossing allows (`python -m eval.bench depth_fit_copies`); an
+    Halving keeps as much of the fit as the crossing allows (`python -m studies depth_fit_copies`); an
     offset below 1e-3 of the largest becomes 0. Each round
     shrinks a moved vertex of every new crossing pair (a pair that did not cross with no vertex moved has
     one), so the loop ends, at worst at the unfitted mesh."""

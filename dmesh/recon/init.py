@@ -145,7 +145,7 @@ def statistical_inliers(points: np.ndarray, std_ratio: float, k: int = 16, worke
     `off_surface`, a point the distance test keeps is dropped when its neighbours form a piece of surface and it
     lies more than `OFF_SURFACE` of their spacings off it: outliers that fell within a few spacings of the
     surface pass the distance test, and a mesh through them has a spike at each. How much each rule drops on
-    the robustness inputs: docs/preset_choices.md and `python -m eval.bench outlier_filter`.
+    the robustness inputs: docs/preset_choices.md and `python -m studies outlier_filter`.
 
     Written with SciPy's k-d tree and NumPy because the library does not depend on Open3D (a harness extra),
     whose filters have no such rescue."""

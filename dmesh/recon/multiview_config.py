@@ -45,7 +45,7 @@ class MultiViewConfig(Presets):
                                      # dmesh.recon.views.smooth_from_pool); 0: off
     init_pooled_preset: str = "fast"  # ... then this point-cloud preset: "fast" (smooths again only points that
                                      # still look noisy or give a shredded mesh) or "noisy" (always smooths
-                                     # again, 20K seeds); which when: python -m eval.bench noisy_depth_start
+                                     # again, 20K seeds); which when: python -m studies noisy_depth_start
     grid: int = 20                   # epoch 0: grid^3 real points
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
@@ -195,7 +195,7 @@ class MultiViewConfig(Presets):
         a small learning rate (the start's points are about 0.01 apart), then phase-2 steps on the reals, and
         `select_best` with the start as a candidate, so the result is never a mesh that renders farther from
         the images than the start. For depth maps with noise, where the diffuse images carry the shape's
-        normals. Its measurements: `reports/table2_multiview.md` and `python -m eval.bench refine`."""
+        normals. Its measurements: `reports/table2_multiview.md` and `python -m studies refine`."""
         base = dict(init="depth", refine_seeds=(), steps_phase1=(REFINE_STEPS[0],), steps_phase2=(REFINE_STEPS[1],),
                     lr_first=REFINE_LR, bound_first=REFINE_LR, max_real_first=3e-3, views_per_step=6,
                     resolution=None, lambda_weight=0.0, lambda_real_start=1e-3, real_ramp_steps=0,
