@@ -39,7 +39,7 @@ neighbours form (an outlier the mesh reached: the fill would be a tent up to it)
 vertices, moved a little into its own faces (`dmesh.repair.split_fans`, `dmesh.repair.separate_copies`): the
 surface no longer touches itself there, so a merge of vertices by position (STL, trimesh's default load) does not
 join the copies again, and no face is dropped (keeping only the flattest pair of faces at such an edge was tried;
-it cost accuracy on coarse meshes: README). Where the input samples a closed surface the result is watertight and
+it cost accuracy on coarse meshes: docs/surface.md). Where the input samples a closed surface the result is watertight and
 2-manifold; the figures per shape: `python -m eval.bench quality` (reports/bench_quality.md).
 
 Multi-view filters (`filtered_faces`, `extract_filtered`; the interior rules of
@@ -433,7 +433,7 @@ def _fair_lids(vertices: np.ndarray, faces: np.ndarray, result: Surface, continu
     A faired lid can fold where its rim is jagged, or pass through a nearby part of the surface (a leaf over
     the hole). Folds are smoothed away (`dmesh.repair.untangle`). A lid piece with a face still crossing another
     is dropped, and the others are faired again without it: it closes a hole in a tight spot, next to other
-    parts of the surface, where the inside/outside labelling is least sure (README: such lids kept flat made
+    parts of the surface, where the inside/outside labelling is least sure (docs/surface.md: such lids kept flat made
     mixed shapes worse), so its hole stays open as it did before lids; a dropped piece's spans stay, flat. A
     closed part CGAL cannot take as a 2-manifold drops all its lids, with a warning."""
     from dmesh import native, repair
