@@ -21,12 +21,10 @@ Settings and their sources (docs/protocol.md, "Baselines", has the dev-split mea
   touch the cut and hold less than 0.001 of the total area (`--aRatio 0.001`) change side: small kept
   islands go, small trimmed holes come back. One setting for closed, open and mixed shapes; on closed,
   well-sampled shapes the density stays above depth - 3 and nothing is cut (measured, docs/protocol.md).
-- The trim value is at most the median density - 0.7 (`trim_median_margin`). The pair depth 10 / trim 7
-  assumes samples that support depth 10; the density follows the sampling, not the depth asked for (median
-  about log4 N - 0.9 on the dev closed shapes: 5.5-5.9 at 5K points, 6.5-6.9 at 20K, 7.7-8.0 at 100K), so at
-  20K points an uncapped trim 7 removed every face. 0.7 is the smallest margin below the median at which the
-  pair sits on the dev closed shapes at 100K (torus: median 7.70), where it cuts nothing: at 100K the cap
-  changes nothing, and below it keeps the same place relative to the samples' density.
+- The trim value is at most the median density - 0.7 (`trim_median_margin`): the density follows the
+  sampling, not the depth asked for, so on a sparse cloud depth - 3 would lie above every vertex and remove
+  the whole surface. 0.7 is where depth 10 / trim 7 sits on the dev torus at 100K points, so the cap is idle
+  there (measurement: docs/protocol.md, "Sparse inputs").
 - `threads` 1: the harness's thread budget (OpenMP spin-waits make 2 much slower on a busy 2-core box).
 
 The `paper` preset (`{preset: paper}` in a sweep, row `psr [preset=paper]`) is the setting of the tables

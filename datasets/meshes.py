@@ -150,9 +150,8 @@ _RELATIVE_FACE = re.compile(rb"(?m)^[ \t]*f[ \t][^\n]*?(?<![^\s/])-\d")
 def _obj_with_absolute_indices(path: Path) -> bytes | None:
     """The OBJ file's bytes with relative (negative) face indices made absolute, or None when it has none.
 
-    OBJ lets a face name its corners counting back from the last vertex read (`f -3 -2 -1`); trimesh 4-5 reads
-    such indices as if they counted from the end of the whole file (a sphere of 162 vertices written as 320
-    `v v v f -3 -2 -1` groups loads as 3 vertices). Written here because no library at hand reads them right;
+    OBJ lets a face name its corners counting back from the last vertex read (`f -3 -2 -1`); trimesh reads
+    them as counting from the end of the whole file. Written here because no library at hand reads them right;
     only files with a negative face index pay for this pass. Texture and normal indices (`v/vt/vn`) count
     back over their own lists."""
     data = path.read_bytes()

@@ -12,8 +12,8 @@ by 1e3 ("x1e-3").
 Sampling. `sample(vertices, faces, n, seed, side)` draws n area-uniform surface points. Each side ("gt",
 "pred") draws from its own stream, a child of `seed` (`metric_rng`) that no input draws from: inputs are
 sampled from `numpy.random.default_rng(seed)` itself, so a metric sample never repeats an input point's draw
-(it once did: the GT's metric samples fell on the faces of the input points, which favoured methods that keep
-the input points as vertices by up to 15 %). The two sides differ, so a mesh compared with itself shows the
+(which would favour methods that keep the input points as vertices; reports/bench_metric_coupling.md). The
+two sides differ, so a mesh compared with itself shows the
 sampling floor of the sample-based CD (about 5-7e-3 at 1e5 samples on the shared meshes; it shrinks as
 1/sqrt(n)), while the point-to-surface CD of a mesh against itself is exactly 0.
 

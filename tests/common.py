@@ -104,3 +104,25 @@ def check_closed(faces: np.ndarray, points: np.ndarray):
     assert mesh.is_watertight and mesh.is_winding_consistent
     check_manifold(faces, points)
     return mesh
+
+
+# --------------------------------------------------------------------------------------- bad-input contract
+
+def refused(capsys, argv: list[str], command: str | None = None, *expect: str) -> str:
+    """Runs `dmesh -q ARGV` in-process and checks the bad-input contract: exit status 2, one non-empty line
+    on stderr, `dmesh <command>: error: ...` holding every `expect` text, no traceback, nothing on stdout.
+    Returns the error line."""
+    from eval.cli import main
+
+    try:
+        code = main(["-q", *argv])
+    except SystemExit as exc:  # argparse's own errors exit through SystemExit
+        code = exc.code
+    out, err = capsys.readouterr()
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2, err
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"dmesh {command}: error: " if command else "dmesh"), err
+    assert ": error: " in lines[0] and all(e in lines[0] for e in expect), err
+    assert out == ""
+    return lines[0]

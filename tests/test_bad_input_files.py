@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from common import fake_views
+from common import fake_views, refused
 
 from eval.cli import main
 
@@ -26,18 +26,8 @@ def _bytes(d: Path) -> dict:
 
 
 def _fails(capsys, argv: list[str], command: str, *expect: str) -> str:
-    """Runs `dmesh -q ARGV` and checks the bad-input contract; returns the error line."""
-    try:
-        code = main(["-q", *argv])
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert code == 2, err
-    assert len(lines) == 1 and lines[0].startswith(f"dmesh {command}: error: "), err
-    assert all(e in lines[0] for e in expect), err
-    assert out == ""
-    return lines[0]
+    """Runs `dmesh -q ARGV` and checks the bad-input contract (`common.refused`); returns the error line."""
+    return refused(capsys, argv, command, *expect)
 
 
 # ------------------------------------------------------------------------ defect 6: `changes --since`

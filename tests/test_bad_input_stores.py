@@ -17,6 +17,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from common import refused
 
 from eval.cli import main
 from eval.store import Store
@@ -109,17 +110,7 @@ def test_bad_store_is_one_line_exit_2_and_changes_nothing(d, capsys, argv, expec
     argv = [a.replace("{d}", str(d)) for a in argv]
     expect = [e.replace("{d}", str(d)) for e in expect]
     before = _snapshot(d)
-    try:
-        code = main(["-q", *argv])
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert code == 2, err
-    assert len(lines) == 1, err
-    assert "Traceback" not in err and lines[0].startswith(f"dmesh {argv[0]}: error: "), err
-    assert all(e in lines[0] for e in expect), err
-    assert out == ""
+    refused(capsys, argv, argv[0], *expect)
     assert _snapshot(d) == before, "the refused command changed the folder"
 
 
