@@ -17,8 +17,8 @@ def require_positive(config, names) -> None:
 def check_coordinates(values, what: str) -> None:
     """ValueError unless every coordinate of `values` ((N, 3) floats, finite) is within `MAX_COORDINATE`.
 
-    Inputs are squared and cubed before they are normalised (distances, volumes); past the limit those
-    overflow float64 and the failure would surface far away as a traceback or a silent NaN."""
+    Inputs are raised to powers up to the fourth before they are normalised (distances, volumes, areas); past
+    the limit those overflow float64 and the failure would surface far away as a traceback or a silent NaN."""
     largest = float(np.abs(np.asarray(values, np.float64)).max(initial=0.0))
     if largest > MAX_COORDINATE:
         raise ValueError(f"{what}: coordinates up to {largest:.3g} in absolute value; at most {MAX_COORDINATE:.0e} "
