@@ -1,6 +1,6 @@
 """The code a run executed, so that an edit of code it never ran leaves it current.
 
-A run's key holds its method's code version (`eval.sweep.code_version`), a hash of the whole module closure of
+A run's key holds its method's code version (`eval.code_hash.code_version`), a hash of the whole module closure of
 the method: any edit inside that closure makes every stored run of the method stale, though most edits touch
 code that many runs never execute (a change to the multi-view depth fit cannot change a run of the `paper`
 preset). So while a run executes, its worker also records which project functions ran (`record`), and the
@@ -16,7 +16,7 @@ their hashes:
                      imported module) is added as a `def:` entry
     file:PATH        a file the run depends on whole: the method's own package (`baselines/`: the wrapper
                      the registry built before the worker started) and the input generation
-                     (`eval.sweep.INPUT_MODULES` and what they import)
+                     (`eval.code_hash.INPUT_MODULES` and what they import)
     tree:native      the native sources, when the closure imports `dmesh.native`
 
 A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
@@ -45,6 +45,9 @@ import sys
 import threading
 from pathlib import Path
 from typing import Iterator, Mapping
+
+from eval.code_hash import (INPUT_MODULES, NATIVE_TREES, REPO, _module_file, method_trees, module_closure,
+                             source_hash, strip_docstrings)
 
 #: Packages whose executed functions are recorded one by one (the harness, `eval`, is not a run's code).
 TRACED_PACKAGES = ("dmesh", "datasets", "baselines")
@@ -80,17 +83,6 @@ def record() -> Iterator[set | None]:
 
 def _digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
-
-
-def strip_docstrings(tree: ast.AST) -> ast.AST:
-    """Removes, in place, the docstrings of the module, classes and functions of `tree`; returns it."""
-    for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
-            first = node.body[0]
-            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
-                    and isinstance(first.value.value, str):
-                node.body = node.body[1:] or [ast.Pass()]
-    return tree
 
 
 def _dump(node: ast.AST) -> bytes:
@@ -209,9 +201,6 @@ def digest(hashes: Mapping[str, str | None]) -> str:
 def entry_hashes(method, codes, root: str | Path | None = None,
                  code_root: str | Path | None = None) -> dict[str, str]:
     """{entry: hash} of a run of `method` that executed `codes` (see `deps_for`)."""
-    from eval.sweep import (INPUT_MODULES, NATIVE_TREES, REPO, _module_file, method_trees, module_closure,
-                            source_hash)
-
     base = Path(root if root is not None else REPO).resolve()
     loaded = Path(code_root).resolve() if code_root is not None else base
     trees = method_trees(method, base)
@@ -250,8 +239,6 @@ def entry_hashes(method, codes, root: str | Path | None = None,
 def current(entry: str, root: str | Path | None = None) -> str | None:
     """The hash that dependency `entry` (a `deps_for` key) has in the sources under `root` now; None if its
     file or unit is gone."""
-    from eval.sweep import REPO, source_hash
-
     base = Path(root if root is not None else REPO)
     kind, _, rest = entry.partition(":")
     if kind == "tree":

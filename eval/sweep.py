@@ -44,14 +44,13 @@ input kind stays "multiview" (its rows sit in the multi-view tables), its settin
 "normals": "estimated", "code"}` and its label the tag "lifted-depth" (`psr [lifted-depth]`). Pre-processing
 specs apply to these points too.
 
-User-given values are checked here for every command: `parse_value` / `parse_sets` read `--set KEY=VALUE`
-values and sweep files as YAML (one loader, which also reads `1e-3` as a number), and `check_seed`,
-`check_points` and `check_capture_size` bound seeds and sizes, saying what a larger value would cost.
+Beside this module: `eval.values` checks the user-given values (`--set`, sweep files, seeds and sizes) for
+every command, `eval.shapes` resolves shape specs, and `eval.code_hash` hashes the code a run depends on (its
+code version, the metric and pre-processing versions). Their names stay importable from here.
 """
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 import logging
@@ -60,157 +59,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from eval import code_hash
+# Re-exported: callers import these from here.
+from eval.code_hash import (INPUT_MODULES, METRIC_MODULES, NATIVE_TREES, PROJECT_PACKAGES, REPO,  # noqa: F401
+                            _module_file, _source_hash, code_text, code_version, method_trees, metrics_version,
+                            module_closure, package_version, preprocess_version, source_hash, sources_changed)
+from eval.shapes import CATEGORIES, MESH_SUFFIXES, ShapeRef, default_data_root, resolve_shape  # noqa: F401
+from eval.values import (MAX_CAPTURE_BYTES, MAX_POINTS, MAX_RESOLUTION, MAX_SEED, MAX_VIEWS,  # noqa: F401
+                         _yaml_loader, check_capture_size, check_points, check_seed, load_yaml, parse_sets,
+                         parse_value)
+
 log = logging.getLogger(__name__)
 
-REPO = Path(__file__).resolve().parents[1]
 INPUT_KINDS = ("pointcloud", "multiview", "mesh")
-CATEGORIES = ("closed", "open", "mixed")
-MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
-
-
-# --------------------------------------------------------------------------------------------------- values
-
-#: The largest seed: the results store keeps seeds as SQLite INTEGER (64-bit signed); numpy takes no negatives.
-MAX_SEED = 2**63 - 1
-#: The most points a cloud or a metric may sample (a sanity bound: 100x the paper's 100K).
-MAX_POINTS = 20_000_000
-#: Bytes per sampled point: float64 position and normal (what `datasets.sampling.sample_points` returns).
-POINT_BYTES = 48
-#: The most views and the largest image side of a capture.
-MAX_VIEWS = 10_000
-MAX_RESOLUTION = 8192
-#: Bytes per captured pixel (float32 diffuse and depth, a bool mask) and the most a capture may hold.
-PIXEL_BYTES = 9
-MAX_CAPTURE_BYTES = 16 * 2**30
-
-
-def _size_text(n_bytes: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
-        if n_bytes < 1024 or unit == "PiB":
-            return f"{n_bytes:.3g} {unit}"
-        n_bytes /= 1024
-    return ""  # unreachable
-
-
-def _integer(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{name}: expected an integer, got {value!r}")
-    return value
-
-
-def check_seed(name: str, value) -> int:
-    """`value` if it is a seed every generator and the store take (0 to 2**63 - 1), else ValueError."""
-    value = _integer(name, value)
-    if not 0 <= value <= MAX_SEED:
-        raise ValueError(f"{name}: a seed must be from 0 to 2**63 - 1 (numpy takes no negative seed, the "
-                         f"results store keeps 64-bit integers), got {value}")
-    return value
-
-
-def check_points(name: str, value, low: int = 1) -> int:
-    """`value` if it is a point or sample count from `low` to `MAX_POINTS`, else ValueError saying why."""
-    value = _integer(name, value)
-    if value < low:
-        raise ValueError(f"{name}: expected at least {low}, got {value}")
-    if value > MAX_POINTS:
-        raise ValueError(f"{name}: at most {MAX_POINTS:,} points, got {value:,} (their positions and normals "
-                         f"alone would need {_size_text(value * POINT_BYTES)} of memory)")
-    return value
-
-
-def check_capture_size(views, resolution, names: tuple[str, str] = ("views", "resolution")) -> None:
-    """ValueError unless `views` images of `resolution`^2 pixels are within the bounds above."""
-    views, resolution = _integer(names[0], views), _integer(names[1], resolution)
-    if views < 1 or resolution < 1:
-        raise ValueError(f"{names[0]} and {names[1]}: expected positive integers, got {views} and {resolution}")
-    need = _size_text(views * resolution**2 * PIXEL_BYTES)
-    if views > MAX_VIEWS:
-        raise ValueError(f"{names[0]}: at most {MAX_VIEWS:,} views, got {views:,} (their images at "
-                         f"{resolution}x{resolution} would need {need} of memory)")
-    if resolution > MAX_RESOLUTION:
-        raise ValueError(f"{names[1]}: at most {MAX_RESOLUTION}, got {resolution} ({views} images would need "
-                         f"{need} of memory)")
-    if views * resolution**2 * PIXEL_BYTES > MAX_CAPTURE_BYTES:
-        raise ValueError(f"{names[0]} {views} at {names[1]} {resolution}: the images would need {need} of memory, "
-                         f"more than the {_size_text(MAX_CAPTURE_BYTES)} a capture may hold; use fewer views or "
-                         f"a lower resolution")
-
-
-@functools.lru_cache(maxsize=None)
-def _yaml_loader():
-    """PyYAML's safe loader, also reading `1e-3` and `5E+4` as floats (YAML 1.1 needs a dot in them) and
-    refusing a key given twice in one mapping (PyYAML keeps the last silently)."""
-    import re
-
-    import yaml
-
-    class Loader(yaml.SafeLoader):
-        def construct_mapping(self, node, deep=False):
-            if isinstance(node, yaml.MappingNode):
-                seen = {}
-                for key_node, _ in node.value:
-                    if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *base` keys may repeat a merged key
-                        continue
-                    key = self.construct_object(key_node, deep=True)
-                    try:
-                        first = seen.setdefault(key, key_node.start_mark)
-                    except TypeError:  # an unhashable key: the base class says so
-                        continue
-                    if first is not key_node.start_mark:
-                        raise yaml.constructor.ConstructorError(
-                            None, None, f"duplicate key {key!r} (first on line {first.line + 1})",
-                            key_node.start_mark)
-            return super().construct_mapping(node, deep)
-
-    Loader.add_implicit_resolver("tag:yaml.org,2002:float",
-                                 re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-                                 list("-+0123456789"))
-    return Loader
-
-
-def _yaml_problem(exc: Exception) -> str:
-    """One line saying what is wrong in a YAML text and where (line and column, 1-based)."""
-    mark = getattr(exc, "problem_mark", None)
-    problem = getattr(exc, "problem", None) or str(exc)
-    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-    return " ".join(f"{where}{problem}".split())
-
-
-def load_yaml(text: str, what: str):
-    """The YAML document `text`, read by the one loader of every command; ValueError (one line naming
-    `what`, the line and the column) when it is not valid YAML."""
-    import yaml
-
-    try:
-        return yaml.load(text, Loader=_yaml_loader())  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{what}: not valid YAML ({_yaml_problem(exc)})") from None
-
-
-def parse_value(raw: str, what: str = "value"):
-    """A `--set` value as YAML: `7` int, `1e-3` float, `[1, 2]` list, `true` bool, `null` None, else the text."""
-    return load_yaml(raw, what)
-
-
-def parse_sets(items: list[str] | tuple[str, ...], flag: str = "--set") -> dict[str, Any]:
-    """`KEY=VALUE` strings to {key: value}, values parsed as YAML (`parse_value`); the last of a key wins.
-
-    The one parser of `--set` for every command (sweeps, `reconstruct`, `compare`). Raises ValueError (one
-    line) for an item without `=`, an empty key or a value that is not valid YAML."""
-    out: dict[str, Any] = {}
-    for item in items or ():
-        key, eq, raw = str(item).partition("=")
-        key = key.strip()
-        if not eq or not key:
-            raise ValueError(f"{flag} {item!r}: expected KEY=VALUE")
-        out[key] = parse_value(raw, f"{flag} {item!r}")
-    return out
-
-
-def default_data_root() -> Path:
-    """Data root for real meshes: $DMESH_DATA, else ../shared/meshes beside the repository."""
-    env = os.environ.get("DMESH_DATA")
-    return Path(env) if env else REPO.parent / "shared" / "meshes"
 
 
 @dataclass(frozen=True)
@@ -439,215 +300,6 @@ class Sweep:
         return out
 
 
-@dataclass(frozen=True)
-class ShapeRef:
-    """A resolved shape spec."""
-
-    id: str                 # shape id used in tables ("torus", "torus@3", "spot")
-    kind: str               # "synthetic" or "file"
-    source: str             # synthetic generator name, or the absolute mesh path
-    gen_seed: int = 0       # synthetic generator seed
-    category: str | None = None  # closed/open/mixed; None for a file until it is classified
-    gt_hash: str = ""       # SHA-256 of the file bytes / generator name and seed
-
-    def __post_init__(self):
-        if self.kind not in ("synthetic", "file"):
-            raise ValueError(f"ShapeRef.kind: expected 'synthetic' or 'file', got {self.kind!r}")
-
-
-def resolve_shape(spec: str, data_root: str | Path | None = None) -> ShapeRef:
-    """Resolves a shape spec (see module docstring); raises ValueError for an unknown shape."""
-    spec = str(spec).strip()
-    if spec.lower().endswith(MESH_SUFFIXES) or os.sep in spec:
-        candidates = [Path(spec).expanduser()]
-        if not Path(spec).is_absolute():
-            candidates.append(Path(data_root or default_data_root()) / spec)
-        for p in candidates:
-            if p.is_file():
-                digest = hashlib.sha256(p.read_bytes()).hexdigest()
-                return ShapeRef(id=p.stem, kind="file", source=str(p.resolve()), gt_hash=digest)
-        raise ValueError(f"unknown shape {spec!r}: no such mesh file (looked in "
-                         f"{', '.join(str(c) for c in candidates)})")
-    name, _, seed_txt = spec.partition("@")
-    try:
-        gen_seed = int(seed_txt) if seed_txt else 0
-    except ValueError:
-        raise ValueError(f"unknown shape {spec!r}: the generator seed after '@' must be an integer") from None
-    from datasets import synthetic
-
-    if name not in synthetic.SHAPES:
-        raise ValueError(f"unknown shape {spec!r}; synthetic shapes: {', '.join(sorted(synthetic.SHAPES))}; "
-                         f"or give a mesh file path")
-    category = synthetic.SHAPES[name][0]
-    digest = hashlib.sha256(f"synthetic/{name}/seed={gen_seed}".encode()).hexdigest()
-    return ShapeRef(id=spec, kind="synthetic", source=name, gen_seed=gen_seed, category=category, gt_hash=digest)
-
-
-# --------------------------------------------------------------------------------------------------- code
-
-#: Modules every run depends on besides its method: the GT and input generation and the metrics.
-INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.sampling",
-                 "datasets.capture", "datasets.corrupt", "datasets.scan")
-#: The metrics of a run. Not in its key: a stored mesh is scored again under new metric code without
-#: rerunning its method (`dmesh rescore`); each run's metrics carry the `metrics_version` that made them.
-METRIC_MODULES = ("eval.metrics", "eval.closest_point")
-#: Packages of this repository whose modules a run's code version follows through imports.
-PROJECT_PACKAGES = ("dmesh", "baselines", "datasets", "eval")
-#: The native sources, which a run depends on when its closure imports `dmesh.native`.
-NATIVE_TREES = ("native",)
-_SOURCE_SUFFIXES = (".py", ".cpp", ".cc", ".h", ".hpp", ".cu", ".cuh", ".txt", ".cmake")
-
-
-def source_hash(trees: tuple[str, ...], root: str | Path = REPO) -> str:
-    """SHA-256 (hex) over the relative paths and code of the source files under `trees` of `root`: a Python
-    file's syntax tree without its docstrings (`code_text`: comments, docstrings and layout change no key), the
-    bytes of any other source."""
-    return _source_hash(tuple(sorted(set(trees))), str(root))
-
-
-def code_text(path: Path) -> bytes:
-    """What of a source file a run's key depends on: for Python, the dump of its syntax tree with the
-    docstrings of the module, classes and functions removed (so editing a comment, a docstring or the layout
-    reruns nothing); the raw bytes of other files and of Python that does not parse."""
-    import ast
-
-    from eval.code_deps import strip_docstrings
-
-    data = path.read_bytes()
-    if path.suffix != ".py":
-        return data
-    try:
-        tree = ast.parse(data, str(path))
-    except (SyntaxError, ValueError):
-        return data
-    return ast.dump(strip_docstrings(tree), include_attributes=False).encode()
-
-
-@functools.lru_cache(maxsize=None)
-def _source_hash(trees: tuple[str, ...], root: str) -> str:
-    h = hashlib.sha256()
-    base = Path(root)
-    for tree in trees:
-        p = base / tree
-        files = [p] if p.is_file() else sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else []
-        for f in files:
-            if f.suffix not in _SOURCE_SUFFIXES or "__pycache__" in f.parts:
-                continue
-            h.update(str(f.relative_to(base)).encode() + b"\0" + code_text(f) + b"\0")
-    return h.hexdigest()
-
-
-def package_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("dmesh-harness")
-    except Exception:  # noqa: BLE001 - not installed (plain checkout): fall back to a marker
-        return "0+unknown"
-
-
-def _module_file(name: str, root: Path) -> Path | None:
-    """The source file of project module `name` under `root` (a module or a package's __init__), or None."""
-    if name.split(".")[0] not in PROJECT_PACKAGES:
-        return None
-    base = root.joinpath(*name.split("."))
-    for f in (base.with_suffix(".py"), base / "__init__.py"):
-        if f.is_file():
-            return f
-    return None
-
-
-def _imported_modules(path: Path, name: str) -> set[str]:
-    """Module names that the source at `path` (module `name`) imports anywhere, lazy imports included; for
-    `from a import b` both `a` and `a.b` (b may be a submodule)."""
-    import ast
-
-    is_pkg = path.name == "__init__.py"
-    out: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            out.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:  # relative: resolve against this module's package
-                pkg = name.split(".")[: len(name.split(".")) - node.level + (1 if is_pkg else 0)]
-                mod = ".".join(pkg + ([node.module] if node.module else []))
-            else:
-                mod = node.module or ""
-            out.add(mod)
-            out.update(f"{mod}.{alias.name}" for alias in node.names)
-    return out
-
-
-@functools.lru_cache(maxsize=None)
-def module_closure(roots: tuple[str, ...], root: str) -> tuple[str, ...]:
-    """Repository-relative source files of the project modules `roots` and of every project module they import,
-    transitively (lazy imports included), plus the `__init__.py` of each package on the way and, when
-    `dmesh.native` is among them, the native sources. A package's `__init__` is hashed but its imports are not
-    followed (a re-exporting `__init__` would otherwise tie every module of the package to every other)."""
-    base = Path(root)
-    files: set[Path] = set()
-    seen: set[str] = set()
-    todo = list(roots)
-    while todo:
-        name = todo.pop()
-        if name in seen:
-            continue
-        seen.add(name)
-        f = _module_file(name, base)
-        if f is None:
-            continue
-        files.add(f)
-        parts = name.split(".")
-        for i in range(1, len(parts)):
-            init = _module_file(".".join(parts[:i]), base)
-            if init is not None:
-                files.add(init)
-        if f.name != "__init__.py" or name in roots:
-            todo.extend(_imported_modules(f, name))
-    out = sorted(str(f.relative_to(base)) for f in files)
-    if "dmesh.native" in seen and _module_file("dmesh.native", base) is not None:
-        out += list(NATIVE_TREES)
-    return tuple(out)
-
-
-def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
-    """The sources a method's results depend on: its own `code_trees` attribute if it has one, else the files of
-    its module and of the project modules it imports (`module_closure`), plus the input generation
-    (`INPUT_MODULES`). So editing one baseline, or the harness around the runs, reruns no other method's stored
-    runs; editing the metrics reruns nothing (`metrics_version`)."""
-    own = getattr(method, "code_trees", None)
-    if own:
-        return tuple(own)
-    modules = {getattr(type(method), "__module__", "") or "",
-               getattr(getattr(method, "reconstruct", None), "__module__", "") or ""}
-    roots = tuple(sorted(m for m in modules if m and m != "builtins")) + INPUT_MODULES
-    return module_closure(roots, str(root))
-
-
-def metrics_version(root: str | Path = REPO) -> str:
-    """The first 16 hex digits of the hash of the metric code (`METRIC_MODULES` and what they import)."""
-    return source_hash(module_closure(METRIC_MODULES, str(root)), root)[:16]
-
-
-def code_version(method, root: str | Path = REPO) -> str:
-    """Package version + '+' + the first 16 hex digits of the hash of the method's sources (`method_trees`)."""
-    return f"{package_version()}+src.{source_hash(method_trees(method, root), root)[:16]}"
-
-
-def sources_changed(method, expected: str, root: str | Path = REPO) -> str | None:
-    """None when the method's sources on disk still hash to `expected` (a run's `code_version`), else a one-line
-    reason. Reads the files again: a forked worker inherits the parent's cached hashes, and it imports any
-    module its parent had not imported from the files as they are now, so a sweep whose sources were edited
-    after it started would otherwise run a mixture of old and new code under the old key."""
-    module_closure.cache_clear()
-    _source_hash.cache_clear()
-    now = code_version(method, root)
-    if now == expected:
-        return None
-    return (f"the sources of method {getattr(method, 'name', method)!r} changed after the sweep started "
-            f"({expected} -> {now}); run the sweep again to run them under their own key")
-
-
 # --------------------------------------------------------------------------------------------------- runs
 
 def _variant_kind(variant: Mapping) -> str | None:
@@ -674,12 +326,6 @@ def config_label(overrides: Mapping, tags: tuple[str, ...] = ()) -> str:
     then the tags ("lifted-depth", "+outliers+smooth"): "depth=7,+outliers+smooth"."""
     return ",".join([f"{k}={overrides[k]}" for k in sorted(overrides)] + [t for t in tags if t])
 
-
-def preprocess_version(root: str | Path = REPO) -> str:
-    """The first 16 hex digits of the hash of `eval.preprocess` and the project code it imports: in the input
-    settings of every pre-processed or lifted input, so a change of that code reruns those runs (and only
-    those) and names a new cache file."""
-    return source_hash(module_closure(("eval.preprocess",), str(root)), root)[:16]
 
 
 def harness_inputs(sweep: "Sweep", method, kind: str, settings: Mapping) -> list[tuple[dict, tuple[str, ...]]]:
@@ -772,7 +418,7 @@ def expand(sweep: Sweep, shapes: list[ShapeRef] | None = None) -> list[RunSpec]:
         for ov in sweep.configs.get(m.name, ({},)):
             _, cfg = build_config(m, ov)
             configs[m.name].append((dict(ov), cfg))
-    versions = {m.name: code_version(m) for m in methods}
+    versions = {m.name: code_hash.code_version(m) for m in methods}
     runs = []
     for shape in shapes:
         for kind, variant in ((k, v) for k in sweep.inputs for v in sweep.input_variants(k)):

@@ -347,7 +347,7 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     """A done run records the hashes of the code it executed; when the method's code version changes but that
     code did not, the next sweep adopts the stored run (nothing runs, the report counts it as current); once a
     recorded hash no longer holds, the run is made again under the new key."""
-    import eval.sweep
+    import eval.code_hash
     from eval.reports.recipes import made_by_earlier_code
     from eval.runner import RunnerConfig, plan_sweep, run_sweep
 
@@ -360,7 +360,7 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     assert row["base_key"] and len(row["code_deps"]["digest"]) == 16
     assert any(k.startswith("file:datasets/") for k in row["code_deps"]["entries"])
 
-    monkeypatch.setattr(eval.sweep, "code_version", lambda method, root=REPO: "9.9+src.elsewhere")
+    monkeypatch.setattr(eval.code_hash, "code_version", lambda method, root=REPO: "9.9+src.elsewhere")
     plan = plan_sweep(sweep, runner)
     assert (plan.stored, plan.kept, plan.pending) == (1, 1, 0)
     assert "1 stored (1 under earlier code versions, current: the code they ran is unchanged), 0 to run" in plan.line()

@@ -46,7 +46,7 @@ def _rows(quick: bool) -> list[dict]:
     from eval.metrics import chamfer_l1_p2s
     from eval.runner import load_gt, prepare_gt
     from eval.store import Store
-    from eval.sweep import resolve_shape
+    from eval.shapes import resolve_shape
 
     db = Path(WORK) / "results.sqlite"
     if not db.is_file():

@@ -36,7 +36,7 @@ def run(args) -> int:
     from datasets.normalize import normalize
     from eval.cli import check_output_dir
     from eval.progress import progress
-    from eval.sweep import check_capture_size, check_seed
+    from eval.values import check_capture_size, check_seed
 
     logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL logs its accelerate check at INFO
     if args.views < 1:

@@ -43,7 +43,9 @@ def run(args) -> int:
     from eval.reports import render_figures, tables
     from eval.runner import RunnerConfig, run_sweep
     from eval.store import Store
-    from eval.sweep import MESH_SUFFIXES, Sweep, check_points, check_seed, get_method
+    from eval.shapes import MESH_SUFFIXES
+    from eval.sweep import Sweep, get_method
+    from eval.values import check_points, check_seed
 
     mesh_path = Path(args.mesh)
     if mesh_path.is_dir():

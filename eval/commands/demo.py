@@ -93,7 +93,8 @@ def run(args) -> int:
     from eval.metrics import compute_metrics
     from eval.progress import progress
     from eval.reports.labels import method_label
-    from eval.sweep import check_points, check_seed, config_label
+    from eval.sweep import config_label
+    from eval.values import check_points, check_seed
 
     check_seed("--seed", args.seed)
     gt = synthetic.generate(args.shape, seed=args.seed)       # ValueError for unknown names, before any output

@@ -52,7 +52,7 @@ def run(args) -> int:
     import dmesh
     from eval.cli import check_output_dir
     from eval.progress import progress
-    from eval.sweep import check_seed
+    from eval.values import check_seed
 
     if args.steps is not None and args.steps < 1:
         raise ValueError(f"--steps must be at least 1, got {args.steps}")

@@ -49,7 +49,7 @@ def _fmt(v) -> str:
 def run(args) -> int:
     from datasets.meshes import load_mesh
     from eval.metrics import compute_metrics
-    from eval.sweep import check_points, check_seed
+    from eval.values import check_points, check_seed
 
     check_points("--samples", args.samples)
     check_seed("--seed", args.seed)

@@ -157,7 +157,7 @@ def _sample_mesh(path: Path, samples: int, seed: int):
 
 def _parse_overrides(items: list[str]) -> dict:
     """KEY=VALUE strings to a dict of Python values, parsed as YAML like every `--set` (`eval.sweep.parse_sets`)."""
-    from eval.sweep import parse_sets
+    from eval.values import parse_sets
 
     return parse_sets(items)
 
@@ -165,7 +165,7 @@ def _parse_overrides(items: list[str]) -> dict:
 def check_args(args) -> Path:
     """Checks the flags, the input's existence and the output paths before any work; returns the output path."""
     from eval.cli import check_output_file
-    from eval.sweep import check_points, check_seed
+    from eval.values import check_points, check_seed
 
     check_seed("--seed", args.seed)
     check_points("--samples", args.samples)

@@ -78,7 +78,7 @@ def run(args) -> int:
     from eval.commands.bench import build_sweep, check_work, summary_text
     from eval.reports import write_reports
     from eval.runner import RunnerConfig, run_sweep
-    from eval.sweep import parse_sets
+    from eval.values import parse_sets
 
     check_output_dir(args.out, "-o")
     if args.report_only:

@@ -30,7 +30,7 @@ def add_arguments(p) -> None:
 
 def _gt_path(work: Path, row: dict) -> Path:
     from eval.runner import shape_dir
-    from eval.sweep import ShapeRef
+    from eval.shapes import ShapeRef
 
     settings = row.get("inputs_json") or {}
     ref = ShapeRef(id=row["shape"], kind="file", source="", gt_hash=row.get("gt_hash") or "")
@@ -43,7 +43,7 @@ def run(args) -> int:
     from eval.progress import progress
     from eval.runner import load_gt, resolve_mesh_path, score
     from eval.store import Store, check_store
-    from eval.sweep import metrics_version
+    from eval.code_hash import metrics_version
 
     work = Path(args.work)
     db = Path(args.db) if args.db else work / "results.sqlite"

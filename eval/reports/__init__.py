@@ -232,7 +232,7 @@ def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> lis
     """One side-by-side figure per (input kind, shape): GT, input, then each method's mesh with its CD."""
     from eval.reports import figures, tables
     from eval.runner import input_path, resolve_mesh_path, shape_dir
-    from eval.sweep import ShapeRef
+    from eval.shapes import ShapeRef
 
     if progress is None:
         from eval.progress import progress

@@ -30,7 +30,7 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
     `label(r)` names a row (default: the method and its config label, as Table 2 shows them).
     """
     from eval.reports.recipes import current_code_version, made_by_earlier_code
-    from eval.sweep import metrics_version
+    from eval.code_hash import metrics_version
 
     if df is None or not len(df):
         return []

@@ -71,7 +71,8 @@ def made_by_earlier_code(row, now: str | None) -> bool:
 def current_code_version(method: str) -> str | None:
     """The code version of `method`'s sources now (`eval.sweep.code_version`); None for an unregistered method
     or unreadable sources (nothing to compare)."""
-    from eval.sweep import code_version, get_method
+    from eval.code_hash import code_version
+    from eval.sweep import get_method
 
     try:
         return code_version(get_method(method))

@@ -460,7 +460,7 @@ def scan_renders(df, db: Path, work: Path, figdir: Path) -> list[tuple[str, Path
     not redrawn: the figure already in `figdir`, if any, is kept and listed."""
     from eval.reports import figures, tables
     from eval.runner import input_path, resolve_mesh_path, shape_dir
-    from eval.sweep import ShapeRef
+    from eval.shapes import ShapeRef
 
     sub = _labelled(df)
     sub = sub[(sub["_name"] == "realistic_scan") & (sub["input_kind"] == "pointcloud")]

@@ -19,7 +19,7 @@ from pathlib import Path
 from eval.io import write_text
 from eval.reports import paper_numbers
 from eval.reports.labels import DISPLAY_NAMES, display_name, method_label, preset_of  # noqa: F401 - re-exported
-from eval.sweep import CATEGORIES
+from eval.shapes import CATEGORIES
 
 log = logging.getLogger(__name__)
 
