@@ -20,7 +20,7 @@ their hashes:
     tree:native      the native sources, when the closure imports `dmesh.native`
 
 A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
-hashes, taken from the sources now, give the same digest (`fresh`; `eval.runner.adopt_current`). One digest
+hashes, taken from the sources now, give the same digest (`fresh`; `eval.stored.adopt_current`). One digest
 rather than a hash per entry keeps the record small. Hashes are over
 the syntax tree without docstrings, like the code version, so comments, docstrings and layout change nothing.
 

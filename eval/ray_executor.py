@@ -1,4 +1,5 @@
-"""The Ray executor of `eval.runner`: a sweep's runs as Ray tasks, on a local Ray or on an existing cluster.
+"""The Ray executor of `eval.runner`: a sweep's runs as Ray tasks, on a local Ray or on an existing cluster
+(the local executor: `eval.local_executor`).
 
 Where Ray runs (`connect`): `--ray-address` (host:port of a head started with `ray start --head`, or `auto`;
 Ray's other address forms are passed on as they are), else `$RAY_ADDRESS`, else a local Ray of `--jobs` CPUs
@@ -11,13 +12,13 @@ Nothing assumes a disk shared between the driver (the process running the sweep)
 - the driver prepares every GT and input in its work folder, exactly as for the local executor, and puts
   the bytes of each into the Ray object store once (`_Payloads`);
 - a task writes them into a scratch folder of its node, laid out like the work folder, runs
-  `eval.runner.execute_run` there (the same code as a local run, the GT monitor included) and returns the
+  `eval.execute.execute_run` there (the same code as a local run, the GT monitor included) and returns the
   outcome with the output mesh as PLY bytes; the scratch folder is removed;
 - the driver writes each mesh file (atomically) and its store row as the result arrives, so a worker or a
   node that dies loses only the run it was computing, which Ray resubmits (`TASK_RETRIES` times).
 
 At most `jobs` tasks are in flight (each asks for `TASK_CPUS` CPUs and runs on that many threads,
-`eval.runner.limit_threads`), so `--jobs` bounds the load a sweep puts on a
+`eval.execute.limit_threads`), so `--jobs` bounds the load a sweep puts on a
 cluster. A run's timeout counts from its submission (keep `--jobs` at or under the free CPUs, or queueing
 counts too) and over Ray's resubmissions; a run past it is cancelled (its worker is killed) and stored as
 failed. A method's own exceptions are outcomes (stored failed, then retried only by `--retry-failed`); only
@@ -36,8 +37,10 @@ from pathlib import Path
 from typing import Callable
 
 from eval.io import atomic_path
-from eval.runner import execute_run, input_path, limit_threads, mesh_path_for, one_line
-from eval.store import pid_alive
+from eval.execute import execute_run, limit_threads, mesh_path_for
+from eval.inputs import input_path
+from eval.plain import one_line
+from eval.leases import pid_alive
 from eval.sweep import RunSpec, get_method
 
 log = logging.getLogger(__name__)
@@ -148,8 +151,8 @@ def _files(root: Path, path: Path) -> dict[str, bytes]:
 class _Payloads:
     """Object-store copies of a sweep's GTs and inputs, each put once and shared by the runs that read it.
 
-    A GT travels as the files `eval.runner.load_gt` reads (gt.ply and meta.json beside it), an input as its
-    cache file or folder (`eval.runner.input_path`), both keyed by their paths relative to the work folder.
+    A GT travels as the files `eval.inputs.load_gt` reads (gt.ply and meta.json beside it), an input as its
+    cache file or folder (`eval.inputs.input_path`), both keyed by their paths relative to the work folder.
     """
 
     def __init__(self, ray, work: str | Path):

@@ -10,10 +10,10 @@ a lease (`Store.claim`): the claiming process's id and host, a random token of t
 heartbeat time, written in one `BEGIN IMMEDIATE` transaction that also checks that the row is not `done`, not
 `failed` (unless the claimer asks to retry it) and not held by a live lease. A lease is live while its
 heartbeat is younger than `stale_s` seconds and, when it was taken on this host, its process still exists
-(a zombie counts as gone); a run whose lease is not live was interrupted and may be taken over. The holder
-refreshes its heartbeat (`Store.heartbeat`) while it works, stores the outcome only while it still holds the
-lease (`Store.finish(..., lease=)`), and frees what it holds when it stops (`Store.release`). `done` is never
-downgraded: every write that could replace a result is guarded by a status condition.
+(a zombie counts as gone; `eval.leases`); a run whose lease is not live was interrupted and may be taken
+over. The holder refreshes its heartbeat (`Store.heartbeat`) while it works, stores the outcome only while it
+still holds the lease (`Store.finish(..., lease=)`), and frees what it holds when it stops (`Store.release`).
+`done` is never downgraded: every write that could replace a result is guarded by a status condition.
 
 Columns (all JSON columns hold UTF-8 JSON text):
     key            TEXT  run key, primary key
@@ -30,7 +30,7 @@ Columns (all JSON columns hold UTF-8 JSON text):
     metrics_json   TEXT  flat dict from `eval.metrics.compute_metrics` (raw units, normalised GT frame)
     timings_json   TEXT  method timings in seconds, including "total"
     info_json      TEXT  the method's extra information (e.g. optimisation steps) and `worker_threads`, the
-                         threads its worker allowed (`eval.runner.limit_threads`)
+                         threads its worker allowed (`eval.execute.limit_threads`)
     peak_memory_mb REAL  peak memory of the method
     mesh_path      TEXT  output mesh, relative to the store's folder when inside it
     gt_hash        TEXT  hash of the GT mesh (file bytes or generated arrays)
@@ -52,21 +52,18 @@ from __future__ import annotations
 import json
 import logging
 import os
-import socket
 import sqlite3
 import time
-import uuid
 from contextlib import contextmanager
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable
 
+from eval.leases import LEASE_S, Lease, _process_lease, lease_live, pid_alive  # noqa: F401 - pid_alive re-exported
+
 log = logging.getLogger(__name__)
 
 STATUSES = ("done", "failed", "running")
-#: Default age in seconds after which a lease whose heartbeat was not refreshed is taken over.
-LEASE_S = 60.0
 
 _COLUMNS = {
     "key": "TEXT PRIMARY KEY",
@@ -122,66 +119,6 @@ def _json_default(obj):
     if hasattr(obj, "item"):
         return obj.item()
     return str(obj)
-
-
-@dataclass(frozen=True)
-class Lease:
-    """Who holds a run: one per sweep (`Lease.new()`), written into the rows it claims."""
-
-    pid: int      # process id of the claiming process
-    host: str     # its host name
-    token: str    # random id, so that two sweeps of one process (one after the other) are told apart
-
-    @classmethod
-    def new(cls) -> "Lease":
-        return cls(pid=os.getpid(), host=socket.gethostname(), token=uuid.uuid4().hex)
-
-
-def pid_alive(pid: int | None) -> bool:
-    """Whether process `pid` exists on this host and is not a zombie (Linux /proc; elsewhere kill(pid, 0))."""
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # exists, owned by another user
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return True  # no /proc (or it vanished just now): trust kill()
-    state = stat.rsplit(")", 1)[-1].split()[:1]
-    return state not in (["Z"], ["X"])  # a killed process its parent has not reaped yet is gone too
-
-
-def lease_live(row, me: Lease, stale_s: float, now: float | None = None) -> bool:
-    """Whether the lease written in `row` (lease_* and heartbeat_at columns) still holds, seen from `me`.
-
-    Live: a heartbeat younger than `stale_s` seconds and, on this host, a process that still exists. A lease
-    of this very process under another token belongs to an earlier sweep of this process that stopped
-    without finishing (one process runs one sweep at a time), so it is not live either.
-    """
-    beat, token = row["heartbeat_at"], row["lease_token"]
-    if token is None or beat is None:
-        return False  # never leased (an older store), or released
-    if token == me.token:
-        return True
-    if (time.time() if now is None else now) - float(beat) > stale_s:
-        return False
-    if row["lease_host"] == me.host:
-        return row["lease_pid"] != me.pid and pid_alive(row["lease_pid"])
-    return True  # another host: only the heartbeat tells
-
-
-_PROCESS_LEASE: Lease | None = None
-
-
-def _process_lease() -> Lease:
-    global _PROCESS_LEASE
-    if _PROCESS_LEASE is None or _PROCESS_LEASE.pid != os.getpid():  # a forked child gets its own
-        _PROCESS_LEASE = Lease.new()
-    return _PROCESS_LEASE
 
 
 def _reader(path: Path) -> sqlite3.Connection:

@@ -10,7 +10,7 @@ where the GT hash is the SHA-256 of a real mesh's file bytes, or of a synthetic 
 seed, and the code version is the package version plus a hash of the source files the run depends on
 (`code_version`). Same key, same result: the runner never recomputes a finished key. A stored run whose key
 holds an earlier code version stays current when the code it executed did not change (`eval.code_deps`): the
-runner then adopts it under its own key (`eval.runner.adopt_current`), found by its `base_key` (the run key
+runner then adopts it under its own key (`eval.stored.adopt_current`), found by its `base_key` (the run key
 without the code version).
 
 Shape specs (strings):
@@ -327,7 +327,6 @@ def config_label(overrides: Mapping, tags: tuple[str, ...] = ()) -> str:
     return ",".join([f"{k}={overrides[k]}" for k in sorted(overrides)] + [t for t in tags if t])
 
 
-
 def harness_inputs(sweep: "Sweep", method, kind: str, settings: Mapping) -> list[tuple[dict, tuple[str, ...]]]:
     """The inputs `method` gets of one input of `kind` (settings `settings`): [(input settings, label tags)], one
     per pre-processing spec of the sweep (module docstring); [] when the method does not take that input."""
@@ -375,7 +374,7 @@ class RunSpec:
     inputs: Mapping[str, Any]      # input settings (in the key)
     seed: int
     code_version: str
-    base_key: str = ""             # the run key without the code version (`eval.runner.adopt_current`)
+    base_key: str = ""             # the run key without the code version (`eval.stored.adopt_current`)
 
     def identity(self) -> dict:
         """The store columns that identify the run (without results)."""

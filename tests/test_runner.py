@@ -722,11 +722,11 @@ def test_a_run_that_lost_accuracy_after_its_last_step_is_warned_about(caplog):
     import logging
     from types import SimpleNamespace
 
-    from eval.runner import _warn_post_step_damage
+    from eval.execute import _warn_post_step_damage
 
     spec = SimpleNamespace(key="abcdef0123456789", method="dmesh", shape=SimpleNamespace(id="mushroom"))
     info = {"curve": [{"phase": 2, "step": 9, "loss": 0.01, "cd_p2s": 1e-3}]}
-    with caplog.at_level(logging.WARNING, logger="eval.runner"):
+    with caplog.at_level(logging.WARNING, logger="eval.execute"):
         _warn_post_step_damage(spec, info, {"cd_p2s": 1.1e-3})
         _warn_post_step_damage(spec, {}, {"cd_p2s": 5e-3})
         assert not caplog.records

@@ -115,7 +115,7 @@ def mesh_figures(mesh, gt_path) -> dict:
     """The figures of the mesh benches' rows: CD p2s against the GT at `gt_path` (100K samples per side, as the
     tables), faces, boundary edges and connected components."""
     from eval.metrics import chamfer_l1_p2s, mesh_stats
-    from eval.runner import load_gt
+    from eval.inputs import load_gt
 
     stats = mesh_stats(mesh, self_intersections=False)
     return {"cd_p2s": chamfer_l1_p2s(mesh, load_gt(gt_path), n=100_000), "faces": stats["faces"],

@@ -44,7 +44,7 @@ def _rows(quick: bool) -> list[dict]:
     import trimesh
 
     from eval.metrics import chamfer_l1_p2s
-    from eval.runner import load_gt, prepare_gt
+    from eval.inputs import load_gt, prepare_gt
     from eval.store import Store
     from eval.shapes import resolve_shape
 

@@ -119,9 +119,9 @@ def summary_text(db, kinds=None, keys=None) -> str:
 
 
 def print_plans(sweeps, runner) -> int:
-    """`--plan`: one line per sweep (`eval.runner.plan_sweep`), its pending runs per method and config, and the
+    """`--plan`: one line per sweep (`eval.plan.plan_sweep`), its pending runs per method and config, and the
     total; returns 0."""
-    from eval.runner import plan_sweep
+    from eval.plan import plan_sweep
 
     plans = [plan_sweep(s, runner) for s in sweeps]
     for plan in plans:

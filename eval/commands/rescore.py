@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
 
 
 def _gt_path(work: Path, row: dict) -> Path:
-    from eval.runner import shape_dir
+    from eval.inputs import shape_dir
     from eval.shapes import ShapeRef
 
     settings = row.get("inputs_json") or {}
@@ -41,7 +41,8 @@ def run(args) -> int:
     import trimesh
 
     from eval.progress import progress
-    from eval.runner import load_gt, resolve_mesh_path, score
+    from eval.execute import resolve_mesh_path, score
+    from eval.inputs import load_gt
     from eval.store import Store, check_store
     from eval.code_hash import metrics_version
 

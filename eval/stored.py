@@ -1,0 +1,67 @@
+"""Which runs of a sweep the results store already holds, so that the sweep skips them.
+
+A run is skipped when its row is done (or failed, unless failures are retried), unless the sweep asks for stored
+runs again (`RERUN_MODES`). A run with no row under its key whose latest done twin of an earlier code version
+executed only code that is unchanged is adopted instead (`adopt_current`, `eval.code_deps`): skipped, and shown
+by the reports as the current code's. Planning (`eval.plan`) and running (`eval.runner`) count alike.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from eval import code_deps
+from eval.code_hash import metrics_version
+from eval.store import Store
+from eval.sweep import RunSpec
+
+#: What a sweep runs again of the runs already stored done (`RunnerConfig.rerun`): nothing, all, or those scored
+#: by an earlier metric code.
+RERUN_MODES = (None, "all", "stale-metrics")
+
+
+def is_stored(row: dict | None, runner, metrics_now: str | None = None) -> bool:
+    """Whether a sweep skips the run whose store row is `row`: done (unless `runner.rerun` asks for it again),
+    or failed (unless failures are retried, or `rerun` is "all").
+
+    `rerun="stale-metrics"` reruns the done runs scored by another metric code than `metrics_now` (the
+    current `metrics_version`): what `dmesh rescore` cannot reach when a run's mesh is not on disk.
+    """
+    status = None if row is None else row["status"]
+    if status == "failed":
+        return not (runner.retry_failed or runner.rerun == "all")
+    if status != "done":
+        return False
+    if runner.rerun == "all":
+        return False
+    if runner.rerun == "stale-metrics":
+        return (row.get("metrics_json") or {}).get("metrics_version") == metrics_now
+    return True
+
+
+def metrics_now(runner) -> str | None:
+    """The current metrics version when `runner` (an `eval.runner.RunnerConfig`) reruns runs by it, else None
+    (not computed)."""
+    return metrics_version() if runner.rerun == "stale-metrics" else None
+
+
+def adopt_current(runs: list[RunSpec], store: Store) -> list[RunSpec]:
+    """`runs` with each run that has no finished row under its key replaced by its latest done twin (same
+    `base_key`, an earlier code version) whose executed code is unchanged (`eval.code_deps.fresh`): such a run
+    is the current code's result, so the sweep skips it and the reports show it as current."""
+    out = []
+    for spec in runs:
+        if spec.base_key and store.status(spec.key) is None:
+            twin = next((r for r in store.twins(spec.base_key) if code_deps.fresh(r["code_deps"])), None)
+            if twin is not None:
+                spec = dataclasses.replace(spec, key=twin["key"], code_version=twin["code_version"])
+        out.append(spec)
+    return out
+
+
+def adopt(runs: list[RunSpec], store: Store, runner) -> tuple[list[RunSpec], int]:
+    """(`runs` with the current runs of earlier code versions adopted (`adopt_current`), how many were): none
+    when `runner.rerun` asks for stored runs again, since a rerun runs the current code under its own key."""
+    if runner.rerun is not None:
+        return runs, 0
+    adopted = adopt_current(runs, store)
+    return adopted, sum(a.key != r.key for a, r in zip(adopted, runs))
