@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from eval.export import EXPORT_NAME, export_store, keep_tables, load_export, read_export
-from eval.reports import robustness, write_reports
+from eval.reports import robustness, robustness_figures, write_reports
 from eval.reports.labels import method_label
 from eval.store import Store
 
@@ -108,9 +108,9 @@ def test_plot_levels_are_in_severity_order_whichever_method_comes_first():
         return [{"method": method, "level": v, "setting": "clean" if v == clean else "x"} for v in levels]
 
     noise = rows("a", [0.0, 0.005], 0.0) + rows("b", [0.0, 0.0025, 0.005, 0.01], 0.0)
-    assert robustness.plot_levels(noise, "depth_noise") == [0.0, 0.0025, 0.005, 0.01]
+    assert robustness_figures.plot_levels(noise, "depth_noise") == [0.0, 0.0025, 0.005, 0.01]
     views = rows("a", [64, 8], 64) + rows("b", [64, 16, 8], 64)
-    assert robustness.plot_levels(views, "views") == [64, 16, 8]
+    assert robustness_figures.plot_levels(views, "views") == [64, 16, 8]
 
 
 def test_dmesh_ratio_against_the_best_other_method(db):
@@ -413,8 +413,8 @@ def test_plot_panels_compare_methods_on_the_shapes_they_all_ran():
     """A study on one shape beside a sweep on two: the panel compares both on the shared shape only."""
     two = {"method": "depth", "level": 0.005, "cd_p2s": 2.0, "per_shape": {"torus": 1.0, "genus2": 3.0}}
     one = {"method": "refine", "level": 0.005, "cd_p2s": 0.8, "per_shape": {"torus": 0.8}}
-    value, common = robustness.matched_values([two, one])
+    value, common = robustness_figures.matched_values([two, one])
     assert common == ["torus"] and value[id(two)] == 1.0 and value[id(one)] == 0.8
     same = {"method": "tsdf", "level": 0.005, "cd_p2s": 5.0, "per_shape": {"torus": 4.0, "genus2": 6.0}}
-    value, common = robustness.matched_values([two, same])
+    value, common = robustness_figures.matched_values([two, same])
     assert common is None and value[id(two)] == 2.0 and value[id(same)] == 5.0   # same shapes: the means

@@ -40,7 +40,8 @@ def run(args) -> int:
 
     from eval.cli import check_output_dir
     from eval.commands.bench import check_work
-    from eval.reports import render_figures, tables
+    from eval.reports import tables
+    from eval.reports.figures import render_figures
     from eval.runner import RunnerConfig, run_sweep
     from eval.store import Store
     from eval.shapes import MESH_SUFFIXES

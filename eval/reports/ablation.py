@@ -12,7 +12,8 @@ import math
 from pathlib import Path
 
 from eval.io import write_text
-from eval.reports.tables import FRAME_NOTE, _mean, markdown, md_text, num, to_csv
+from eval.reports.render import markdown, md_text, num, to_csv
+from eval.reports.tables import FRAME_NOTE, _mean
 
 #: knob -> (the swept coefficient, the one held at 0), output stem, paper table.
 KNOBS = {"weight": ("lambda_weight", "lambda_quality", "ablation_weight", "Table 4"),
@@ -53,6 +54,22 @@ def ablation_rows(df, knob: str) -> list[dict]:
     return rows
 
 
+def columns(knob: str) -> list[tuple]:
+    """The columns of the ablation table of `knob` (`shown_rows`), in its Markdown report and on index.html
+    alike."""
+    cols = [("value", KNOBS[knob][0], None), ("n", "n", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3),
+            ("cd_l1", "CD L1 (x1e-3)", 1e3), ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1),
+            ("time_s", "time (s)", 1), ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)]
+    if knob == "quality":
+        cols.append(("paper_aspect_ratio", "paper aspect ratio", 1, ".2f"))
+    return cols
+
+
+def shown_rows(rows: list[dict]) -> list[dict]:
+    """`ablation_rows` as a table shows them: the swept value as text."""
+    return [{**r, "value": f"{r['value']:g}"} for r in rows]
+
+
 def write_ablations(df, out: str | Path) -> list[Path]:
     """Writes `ablation_weight.{md,csv}` and `ablation_quality.{md,csv}` under `out`; returns the paths."""
     out = Path(out)
@@ -66,13 +83,7 @@ def write_ablations(df, out: str | Path) -> list[Path]:
               f"{FRAME_NOTE} CD x1e-3 (point-to-surface and sample L1, both directions summed); aspect ratio: "
               "mean circumradius / (2 inradius). The paper's columns are its own shapes and units, for the trend "
               "only.", ""]
-        cols = [("value", swept, None), ("n", "n", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3),
-                ("cd_l1", "CD L1 (x1e-3)", 1e3), ("faces", "faces", 1), ("aspect_ratio", "aspect ratio", 1),
-                ("time_s", "time (s)", 1),
-                ("paper_cd", "paper CD", 1, ".2f"), ("paper_faces", "paper faces", 1)]
-        if knob == "quality":
-            cols.append(("paper_aspect_ratio", "paper aspect ratio", 1, ".2f"))
-        md.append(markdown([{**r, "value": f"{r['value']:g}"} for r in rows], cols) if rows
+        md.append(markdown(shown_rows(rows), columns(knob)) if rows
                   else "_No ablation runs in the store yet: "
                        "`dmesh bench eval/sweeps/ablation.yaml --work runs/paper`._\n")
         md += ["", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
@@ -83,4 +94,4 @@ def write_ablations(df, out: str | Path) -> list[Path]:
     return written
 
 
-__all__ = ["KNOBS", "is_ablation", "ablation_rows", "write_ablations"]
+__all__ = ["KNOBS", "is_ablation", "ablation_rows", "columns", "shown_rows", "write_ablations"]

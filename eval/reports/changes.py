@@ -98,7 +98,7 @@ def _short(version) -> str:
 def changes_markdown(rows: list[dict], counts: dict, metric: str, tolerance: float, before: str,
                      after: str) -> str:
     """The report: what was compared, the counts, and the table of moved configurations."""
-    from eval.reports.tables import markdown, md_text
+    from eval.reports.render import markdown, md_text
 
     metric, before, after = md_text(metric), md_text(before), md_text(after)  # names from the command line
     lines = [f"# What moved: {metric}, {before} -> {after}", "",

@@ -15,7 +15,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from eval.io import write_text
-from eval.reports.tables import FRAME_NOTE, display_name, markdown, method_label, num, to_csv
+from eval.reports.labels import method_label
+from eval.reports.render import markdown, num, to_csv
+from eval.reports.tables import FRAME_NOTE
 
 #: Final CD p2s / last monitored CD p2s above which a run is listed (README, "Damage after the last step").
 GAP_RATIO = 1.25
@@ -62,6 +64,13 @@ def gap_rows(df, ratio: float = GAP_RATIO) -> tuple[list[dict], list[float]]:
     return rows, ratios
 
 
+#: The columns of the checks table (`gap_rows`), in checks.md and on index.html alike (CD p2s x1e-3).
+COLUMNS = [("method", "method", None), ("shape", "shape", None), ("category", "class", None),
+           ("input_kind", "input", None), ("seed", "seed", 1), ("last_step", "last monitored", None),
+           ("monitor_cd_p2s", "monitor CD p2s", 1e3), ("cd_p2s", "final CD p2s", 1e3), ("ratio", "ratio", 1, ".2f"),
+           ("earlier_code", "earlier code", None)]
+
+
 def summary(ratios: list[float]) -> str:
     """" The others: LO-HI." (the range of the ratios at most `GAP_RATIO`), or "" when there are none."""
     others = [r for r in ratios if r <= GAP_RATIO]
@@ -80,11 +89,7 @@ def write_checks(rows: list[dict], ratios: list[float], out: str | Path) -> list
     md.append(f"Runs with a monitored curve: {len(ratios)}; over {GAP_RATIO:g}x: {len(rows)}." + summary(ratios))
     md.append("")
     if rows:
-        md.append(markdown(rows, [("method", "method", None), ("shape", "shape", None),
-                                  ("category", "class", None), ("input_kind", "input", None),
-                                  ("seed", "seed", 1), ("last_step", "last monitored", None),
-                                  ("monitor_cd_p2s", "monitor CD p2s", 1e3), ("cd_p2s", "final CD p2s", 1e3),
-                                  ("ratio", "ratio", 1, ".2f"), ("earlier_code", "earlier code", None)]))
+        md.append(markdown(rows, COLUMNS))
     md += ["", "_Generated from the results store by `eval.reports`; do not edit by hand._", ""]
     md_path, csv_path = out / "checks.md", out / "checks.csv"
     write_text(md_path, "\n".join(md))
@@ -92,4 +97,4 @@ def write_checks(rows: list[dict], ratios: list[float], out: str | Path) -> list
     return [md_path, csv_path]
 
 
-__all__ = ["GAP_RATIO", "monitor_gap", "gap_rows", "summary", "write_checks"]
+__all__ = ["GAP_RATIO", "COLUMNS", "monitor_gap", "gap_rows", "summary", "write_checks"]

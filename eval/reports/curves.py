@@ -16,7 +16,7 @@ CLASSES = ("closed", "open", "mixed")
 def curve_runs(df, input_kind: str = "pointcloud") -> list[dict]:
     """[{"label", "shape", "category", "curve"}]: one done run per (configuration, class) with a curve of at
     least two points."""
-    from eval.reports.tables import display_name, method_label
+    from eval.reports.labels import method_label
 
     if not len(df) or "info" not in df.columns:
         return []

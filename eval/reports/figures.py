@@ -238,3 +238,66 @@ def bar_plots(rows: list[dict], out: str | Path, title: str) -> Path | None:
         fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
     return out
+
+
+def render_figures(df, db: Path, work: Path, figdir: Path, progress=None) -> list[tuple[str, Path]]:
+    """One side-by-side figure per (input kind, shape): GT, input, then each method's mesh with its CD."""
+    from eval.execute import resolve_mesh_path
+    from eval.inputs import input_path, shape_dir
+    from eval.reports import tables
+    from eval.shapes import ShapeRef
+
+    if progress is None:
+        from eval.progress import progress
+    cache = work / "renders"
+    out = []
+    groups = list(df.groupby(["input_kind", "category", "shape"], sort=True))
+    order = {"pointcloud": 0, "multiview": 1}
+    groups.sort(key=lambda g: (order.get(g[0][0], 9), ("closed", "open", "mixed").index(g[0][1])
+                               if g[0][1] in ("closed", "open", "mixed") else 9, g[0][2]))
+    for (kind, category, shape), g in progress(groups, desc="renders", unit="figure", leave=False):
+        try:
+            first = g.sort_values("seed").iloc[0]
+            settings = first["inputs_json"] if isinstance(first["inputs_json"], dict) else {}
+            ref = ShapeRef(id=shape, kind="file", source="", gt_hash=first["gt_hash"] or "")
+            radius = float(settings.get("radius", 1.0))
+            gt = shape_dir(work, ref, radius) / "gt.ply"
+            missing = not gt.is_file()  # GT or a done run's mesh absent (e.g. a clone with the store export only)
+            panels = []
+            panels.append(("ground truth", cached_render(gt, cache) if gt.is_file()
+                           else _placeholder("GT missing")))
+            if kind == "pointcloud" and "n_points" in settings:
+                p = input_path(work, ref, kind, settings, int(first["seed"]))
+                if p.is_file():
+                    panels.append((f"input: {settings['n_points']} points", cached_render(p, cache, "points")))
+            elif kind == "multiview" and "views" in settings:
+                p = input_path(work, ref, kind, settings, int(first["seed"]))
+                thumb = multiview_thumbnail(p) if p.exists() else None
+                if thumb is not None:
+                    panels.append((f"input: {settings['views']} views (one shown)", thumb))
+            seed0 = g[g["seed"] == first["seed"]]
+            for _, r in seed0.sort_values(["method", "config_label"]).iterrows():
+                label = tables.method_label(r["method"], r["config_label"], kind)
+                mp = resolve_mesh_path(r.to_dict(), db)
+                if r["status"] == "done" and mp is not None and mp.is_file():
+                    cd = r.get("cd_p2s")
+                    cap = f"{label}\nCD p2s {tables.fmt(float(cd) * 1e3)}e-3" if cd is not None and cd == cd else label
+                    panels.append((cap, cached_render(mp, cache)))
+                else:
+                    missing = missing or r["status"] == "done"
+                    err = (tables.text(r.get("error")) or r["status"])[:34]
+                    panels.append((f"{label}\n{r['status']}: {err}", _placeholder(r["status"])))
+            name = f"renders_{kind}_{safe_name(shape)}.png"
+            title = f"{shape} ({category}), {kind} input, seed {int(first['seed'])}"
+            if missing and (figdir / name).is_file():  # keep the figure drawn from the meshes, not placeholders
+                out.append((title, figdir / name))
+                continue
+            out.append((title, side_by_side(panels, figdir / name, title, cache=cache)))
+        except Exception as exc:  # noqa: BLE001 - a figure that cannot be drawn must not lose the tables
+            log.warning("renders for %s / %s skipped: %s", kind, shape, exc)
+    return out
+
+
+def safe_name(name: str) -> str:
+    """`name` as a file name: characters other than letters, digits and -_@. become _."""
+    return "".join(c if c.isalnum() or c in "-_@." else "_" for c in name)

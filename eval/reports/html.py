@@ -5,6 +5,7 @@ import html
 from pathlib import Path
 
 from eval.io import write_text
+from eval.reports.render import table_html  # noqa: F401 - re-exported
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:24px auto;max-width:1200px;
@@ -19,31 +20,6 @@ td.paper{color:#666;background:#f7f4ec!important} td.fail{color:#b22}
 img{max-width:100%;border:1px solid #e3e3e3;margin:4px 0}
 .links a{margin-right:14px} .meta{color:#666;font-size:.85em}
 """
-
-
-def table_html(rows: list[dict], columns: list[tuple], paper_cols=()) -> str:
-    """An HTML table; columns are (key, header, scale[, format spec]) with scale None for text (left aligned).
-    Columns named in `paper_cols` are shaded (published numbers); failure cells are red."""
-    from eval.reports.tables import cell
-
-    out = ["<table><tr>" + "".join(f"<th>{html.escape(c[1])}</th>" for c in columns) + "</tr>"]
-    for r in rows:
-        cells = []
-        for c in columns:
-            key, scale = c[0], c[2]
-            v = r.get(key)
-            cls = []
-            if scale is None or isinstance(v, str):
-                cls.append("t")
-            if key in paper_cols:
-                cls.append("paper")
-            if key in ("failed", "status") and v not in (0, "done", None):
-                cls.append("fail")
-            attr = f' class="{" ".join(cls)}"' if cls else ""
-            cells.append(f"<td{attr}>{html.escape(cell(v, scale, c[3] if len(c) > 3 else None))}</td>")
-        out.append("<tr>" + "".join(cells) + "</tr>")
-    out.append("</table>")
-    return "\n".join(out)
 
 
 def write_index(out: str | Path, sections: list[tuple[str, str]], title: str, meta: str) -> Path:

@@ -15,7 +15,8 @@ import re
 from pathlib import Path
 
 from eval.io import write_text
-from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
+from eval.reports.render import markdown, num, to_csv
+from eval.reports.tables import FRAME_NOTE
 
 CLASSES = ("closed", "open", "mixed")
 CSV_COLUMNS = ["shape", "category", "settings", "faces", "cd_p2s", "cd_l1", "time_s", "tsdf_cd_p2s", "over_tsdf",

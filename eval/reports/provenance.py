@@ -11,7 +11,8 @@ visible here, per table row, so a table never mixes two versions of the code sil
 """
 from __future__ import annotations
 
-from eval.reports.tables import display_name, markdown, method_label
+from eval.reports.labels import method_label
+from eval.reports.render import markdown
 
 PROVENANCE_NOTE = (
     "Which code made and scored the runs of each row. *earlier code*: runs made by an earlier version of the "
@@ -21,6 +22,10 @@ PROVENANCE_NOTE = (
     "run). *earlier metrics*: done runs scored by an "
     "earlier `eval.metrics` (their figures may be counted another way; `dmesh rescore --work W` recomputes "
     "those whose mesh is on disk). Zero in both: the row is the current code's.")
+
+#: The columns of the provenance table (`provenance_rows`), in the Markdown reports and on index.html alike.
+PROVENANCE_COLUMNS = [("method", "method", None), ("runs", "runs", 1), ("earlier_code", "earlier code", 1),
+                      ("earlier_metrics", "earlier metrics", 1)]
 
 
 def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]:
@@ -59,8 +64,7 @@ def provenance_markdown(rows: list[dict]) -> list[str]:
     if not rows:
         return []
     return ["", "## Provenance", "", PROVENANCE_NOTE, "",
-            markdown(rows, [("method", "method", None), ("runs", "runs", 1), ("earlier_code", "earlier code", 1),
-                            ("earlier_metrics", "earlier metrics", 1)])]
+            markdown(rows, PROVENANCE_COLUMNS)]
 
 
-__all__ = ["provenance_rows", "provenance_markdown", "PROVENANCE_NOTE"]
+__all__ = ["provenance_rows", "provenance_markdown", "PROVENANCE_NOTE", "PROVENANCE_COLUMNS"]

@@ -1,6 +1,7 @@
 """Which recipe made each DMesh row: gradient steps or an initialisation, and how it differs from the paper.
 
-The descriptions live beside the presets (`POINTCLOUD_RECIPES` in `dmesh.recon.config`, `MULTIVIEW_RECIPES` in `dmesh.recon.multiview_config`);
+The descriptions live beside the presets (`POINTCLOUD_RECIPES` in `dmesh.recon.config`, `MULTIVIEW_RECIPES` in
+`dmesh.recon.multiview_config`);
 this module matches them to the rows of a report by the run's config label ("preset=paper", or "" for the
 method's default preset, `fast`).
 """
@@ -8,9 +9,14 @@ from __future__ import annotations
 
 from dmesh.recon.config import DEFAULT_PRESET, POINTCLOUD_RECIPES
 from dmesh.recon.multiview_config import MULTIVIEW_RECIPES
+from eval.reports.labels import method_label
+from eval.reports.render import markdown
 
 #: The DMesh harness methods with presets, by input kind, and the recipes of their presets.
 DMESH_METHODS = {"pointcloud": {"dmesh": POINTCLOUD_RECIPES}, "multiview": {"dmesh_mv": MULTIVIEW_RECIPES}}
+#: The columns of the recipes table (`recipe_rows`), in the Table 2 Markdown reports and on index.html alike.
+RECIPE_COLUMNS = [("method", "row", None), ("preset", "preset", None), ("kind", "made by", None),
+                  ("recipe", "recipe", None)]
 
 
 def _preset(config_label: str) -> tuple[str, str]:
@@ -24,8 +30,6 @@ def _preset(config_label: str) -> tuple[str, str]:
 def recipe_rows(df, input_kind: str) -> list[dict]:
     """One row per DMesh configuration of `input_kind` in `df` (the store's dataframe): label, preset,
     "gradient steps" or "initialisation", and the recipe."""
-    from eval.reports.tables import display_name, method_label
-
     methods = DMESH_METHODS.get(input_kind, {})
     if not len(df):
         return []
@@ -82,16 +86,14 @@ def current_code_version(method: str) -> str | None:
 
 def recipe_markdown(rows: list[dict]) -> str:
     """The "DMesh recipes" section of a Table 2 Markdown report ("" without DMesh rows)."""
-    from eval.reports.tables import markdown
-
     if not rows:
         return ""
     out = ["## DMesh recipes", "",
            "Which DMesh rows take gradient steps and which come from an initialisation, and how each recipe "
            "differs from the paper's.", "",
-           markdown(rows, [("method", "row", None), ("preset", "preset", None), ("kind", "made by", None),
-                           ("recipe", "recipe", None)])]
+           markdown(rows, RECIPE_COLUMNS)]
     return "\n".join(out)
 
 
-__all__ = ["recipe_rows", "recipe_markdown", "current_code_version", "made_by_earlier_code", "DMESH_METHODS"]
+__all__ = ["recipe_rows", "recipe_markdown", "current_code_version", "made_by_earlier_code", "DMESH_METHODS",
+           "RECIPE_COLUMNS"]

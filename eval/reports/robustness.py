@@ -17,6 +17,9 @@ holds a scan, its level being the settings themselves. Corruption rows are shown
 ran on some corrupted input; configs run only on clean inputs (the matched-budget sizes) appear in the
 budget view. Frame and units as in Table 2: the GT normalised to max vertex norm 1, CD x1e-3 in Markdown, raw
 distances in the CSV.
+
+Beside this module (rows, ratios, the Markdown and CSV files): `eval.reports.corruptions` reads a run's corruption
+and level, `eval.reports.robustness_figures` draws the figures.
 """
 from __future__ import annotations
 
@@ -26,78 +29,21 @@ import re
 from pathlib import Path
 
 from eval.io import write_text
+from eval.reports.corruptions import (CLASSES, FACTORS, corruption_of, fmt_level, has_runs,  # noqa: F401
+                                      is_robustness, labelled, setting_label, severity)
+from eval.reports.robustness_figures import budget_plot, line_plots, scan_renders
 
 log = logging.getLogger(__name__)
 
-#: Corruptions in the order the report shows them.
-FACTORS = ("noise", "outliers", "density", "nonuniform", "normals", "scan", "depth_noise", "views", "resolution")
-#: Corruptions where a smaller level is the harder one (fewer points, cameras, views, pixels).
-_DESCENDING = ("density", "scan", "views", "resolution")
 CSV_COLUMNS = ["input", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1", "time_s",
                "faces", "components", "fscore", "normal_consistency", "setting"]
 BUDGET_COLUMNS = ["input", "method", "category", "config", "density", "n", "faces", "cd_p2s", "time_s"]
 _METRICS = (("cd_p2s", ("cd_p2s",)), ("cd_l1", ("cd_l1",)), ("time_s", ("time_s",)), ("faces", ("faces", "n_faces")),
             ("components", ("components",)), ("fscore", ("fscore", "f_score")),
             ("normal_consistency", ("normal_consistency", "nc")))
-_CLASSES = ("closed", "open", "mixed")
 
 
 # --------------------------------------------------------------------------------------------------- rows
-
-def is_robustness(df):
-    """(rows,) bool Series: the runs of `df` (a `Store.dataframe()`) made on a sweep variant."""
-    if df is None or not len(df) or "inputs_json" not in df.columns:
-        import pandas as pd
-
-        return pd.Series(False, index=getattr(df, "index", None), dtype=bool)
-    return df["inputs_json"].map(lambda s: isinstance(s, dict) and isinstance(s.get("corruption"), dict))
-
-
-def has_runs(df) -> bool:
-    """Whether `df` holds a run on a corrupted (not clean) input."""
-    if df is None or not len(df):
-        return False
-    sub = df[is_robustness(df)]
-    return bool(len(sub)) and any(corruption_of(s)[0] != "clean" for s in sub["inputs_json"])
-
-
-def setting_label(corruption: dict) -> str:
-    """"noise=0.005,outliers=0.01" ("clean" for {})."""
-    return ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in sorted(corruption.items())) \
-        or "clean"
-
-
-def corruption_of(settings: dict) -> tuple[str, object]:
-    """(corruption name, level) of a run's input settings (module docstring)."""
-    c = dict(settings.get("corruption") or {})
-    factors = [k for k in c if not (k == "normals" and "scan" in c)]
-    if not factors:
-        return "clean", None
-    if len(factors) == 1:
-        return factors[0], c[factors[0]]
-    return ("realistic_scan" if "scan" in c else "combined"), setting_label(c)
-
-
-def _severity(factor: str, level, clean) -> tuple:
-    """Sort key: the clean level first, then from the mildest to the harshest level."""
-    if level == clean:
-        return (0, 0.0, "")
-    if isinstance(level, str):
-        return (1, 0.0, level)
-    return (1, -float(level) if factor in _DESCENDING else float(level), "")
-
-
-def _labelled(df):
-    """The robustness runs of `df` with columns _kind_label (method label), _name and _level."""
-    from eval.reports.tables import display_name, method_label
-
-    sub = df[is_robustness(df)].copy()
-    named = sub["inputs_json"].map(corruption_of)
-    sub["_name"] = named.map(lambda x: x[0])
-    sub["_level"] = named.map(lambda x: x[1])
-    sub["_label"] = [method_label(m, c, k) for m, k, c in
-                     zip(sub["method"], sub["input_kind"], sub["config_label"])]
-    return sub
 
 
 def _aggregate(g) -> dict:
@@ -122,7 +68,7 @@ def robustness_rows(df) -> list[dict]:
     """One row per input kind, method (+ config), class, corruption and level (raw units; module docstring)."""
     if df is None or not len(df):
         return []
-    sub = _labelled(df)
+    sub = labelled(df)
     rows = []
     for kind, gk in sub.groupby("input_kind", sort=True):
         corrupted = gk[gk["_name"] != "clean"]
@@ -131,7 +77,7 @@ def robustness_rows(df) -> list[dict]:
         names += sorted(set(corrupted["_name"]) - set(FACTORS))
         for label in labels:
             gm = gk[gk["_label"] == label]
-            for cat in [c for c in _CLASSES if c in set(gm["category"])] + sorted(set(gm["category"]) - set(_CLASSES)):
+            for cat in [c for c in CLASSES if c in set(gm["category"])] + sorted(set(gm["category"]) - set(CLASSES)):
                 gc = gm[gm["category"] == cat]
                 for name in names:
                     rows += _factor_rows(gc, kind, label, cat, name)
@@ -155,18 +101,14 @@ def _factor_rows(gc, kind: str, label: str, cat: str, name: str) -> list[dict]:
     if name in FACTORS and len(clean):
         runs = pd.concat([clean.assign(_level=[clean_level(name, s) for s in clean["inputs_json"]]), runs])
     out = []
-    for level in sorted(set(runs["_level"]), key=lambda v: _severity(name, v, clean_value)):
+    for level in sorted(set(runs["_level"]), key=lambda v: severity(name, v, clean_value)):
         if name not in FACTORS:
             setting = level
         else:
-            setting = "clean" if level == clean_value else f"{name}={_fmt_level(level)}"
+            setting = "clean" if level == clean_value else f"{name}={fmt_level(level)}"
         out.append({"input": kind, "method": label, "category": cat, "corruption": name, "level": level,
                     **_aggregate(runs[runs["_level"] == level]), "setting": setting})
     return out
-
-
-def _fmt_level(level) -> str:
-    return f"{level:g}" if isinstance(level, float) else str(level)
 
 
 #: Config keys that only set a method's output size (eval/sweeps/robustness_budget.yaml, nie_budget.yaml). A config
@@ -188,7 +130,7 @@ def budget_rows(df) -> list[dict]:
 
     if df is None or not len(df):
         return []
-    sub = _labelled(df)
+    sub = labelled(df)
     sub = sub[sub["_name"].isin(["clean", "density"])]
     rows = []
     for (kind, method, clabel, cat), g in sub.groupby(["input_kind", "method", "config_label", "category"], sort=True):
@@ -292,7 +234,7 @@ def noise_rows(df) -> list[dict]:
     calibration of both thresholds on the sweeps' own inputs."""
     if df is None or not len(df):
         return []
-    sub = _labelled(df)
+    sub = labelled(df)
     from eval.reports.labels import method_label
 
     defaults = (method_label("dmesh", "", "pointcloud"), method_label("dmesh_mv", "preset=depth", "multiview"))
@@ -300,7 +242,7 @@ def noise_rows(df) -> list[dict]:
     out = []
     for (kind, name), g in sub.groupby(["input_kind", "_name"], sort=True):
         levels = {str(v): v for v in g["_level"]}
-        for key in sorted(levels, key=lambda k: _severity(name, levels[k], None)):
+        for key in sorted(levels, key=lambda k: severity(name, levels[k], None)):
             gl = g[g["_level"].map(str) == key]
             seen = [_measured_noise(kind, i) for i in gl["info"]] if "info" in gl.columns else []
             ratios = [r for r, _ in seen if r is not None]
@@ -313,198 +255,6 @@ def noise_rows(df) -> list[dict]:
                         "smoothed": f"{sum(flags)} of {len(flags)}" if flags else "",
                         "redone": f"{sum(again)} of {len(again)}" if again else ""})
     return out
-
-
-# --------------------------------------------------------------------------------------------------- plots
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def plot_levels(rows: list[dict], name: str) -> list:
-    """The levels of one panel's `robustness_rows` (all methods of one class and corruption), clean first, then
-    from the mildest to the harshest. Each method's rows are in that order already, but a method run on fewer
-    levels (a study at 0.5 % noise only) would otherwise put its levels first."""
-    clean = {r["level"] for r in rows if r.get("setting") == "clean"}
-    return sorted({r["level"] for r in rows}, key=lambda v: (0, 0.0, "") if v in clean else _severity(name, v, None))
-
-
-def matched_values(rows: list[dict]) -> tuple[dict[int, float | None], list[str] | None]:
-    """CD p2s of one panel's rows (all methods of one class and corruption) over the same shapes.
-
-    A study may run on fewer shapes than the sweep beside it (one per class against two), and a mean over
-    other shapes is no comparison. When the methods' shape sets differ, each row's value is its mean over the
-    shapes every method of the panel ran (its `per_shape`); returns ({id(row): value}, those shapes), or the
-    rows' own means and None when the sets agree (or have no shape in common).
-    """
-    sets: dict[str, set] = {}
-    for r in rows:
-        sets.setdefault(r["method"], set()).update(r.get("per_shape") or {})
-    common = set.intersection(*sets.values()) if sets else set()
-    if not common or all(v == common for v in sets.values()):
-        return {id(r): r["cd_p2s"] for r in rows}, None
-    out = {}
-    for r in rows:
-        vals = [r["per_shape"][s] for s in common if s in (r.get("per_shape") or {})]
-        out[id(r)] = sum(vals) / len(vals) if vals else None
-    return out, sorted(common)
-
-
-def line_plots(rows: list[dict], kind: str, out: Path) -> Path | None:
-    """CD p2s (x1e-3, log) against level, one panel per class (rows) and corruption (columns); in a panel
-    whose methods ran on different shapes, over the shapes they all ran (`matched_values`, named in the
-    panel's title)."""
-    rows = [r for r in rows if r["input"] == kind and r["corruption"] in FACTORS]
-    if not rows:
-        return None
-    plt = _pyplot()
-    cats = [c for c in _CLASSES if any(r["category"] == c for r in rows)]
-    names = [f for f in FACTORS if any(r["corruption"] == f for r in rows)]
-    methods = sorted({r["method"] for r in rows})
-    cmap = plt.get_cmap("tab10")
-    fig, axes = plt.subplots(len(cats), len(names), figsize=(max(6.5, 3.1 * len(names)), 2.6 * len(cats) + 0.8),
-                             squeeze=False)
-    for i, cat in enumerate(cats):
-        for j, name in enumerate(names):
-            ax = axes[i, j]
-            rs = [r for r in rows if r["category"] == cat and r["corruption"] == name]
-            levels = plot_levels(rs, name)
-            value, common = matched_values(rs)
-            for k, m in enumerate(methods):
-                pts = [(levels.index(r["level"]), value[id(r)] * 1e3) for r in rs
-                       if r["method"] == m and value[id(r)] is not None and value[id(r)] > 0]
-                if pts:
-                    ax.plot(*zip(*pts), marker="o", ms=3.5, lw=1.3, color=cmap(k % 10), label=m)
-            ax.set_xticks(range(len(levels)), [_fmt_level(v) for v in levels], fontsize=7)
-            ax.set_yscale("log")
-            _plain_ticks(ax)
-            ax.grid(alpha=0.3, which="both")
-            ax.set_title(f"{name} ({cat})" + (f"\n{', '.join(common)} only" if common else ""), fontsize=9)
-            if j == 0:
-                ax.set_ylabel("CD p2s (x1e-3)", fontsize=8)
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(6, len(labels) or 1), fontsize=8)
-    fig.suptitle(f"Robustness, {kind} input: CD p2s against the corruption level (clean level first)", fontsize=10)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.97))
-    return _save(fig, plt, out)
-
-
-def budget_plot(rows: list[dict], kind: str, out: Path) -> Path | None:
-    """CD p2s against output faces (log-log), one panel per class: solid lines join a method's configs on the
-    full input, dashed lines its default config at lower input densities."""
-    rows = [r for r in rows if r["input"] == kind and r["faces"] and r["cd_p2s"]]
-    sizes = {}
-    for r in rows:
-        sizes[(r["method"], r["category"])] = sizes.get((r["method"], r["category"]), 0) + 1
-    if not sizes or max(sizes.values()) < 2:  # no method at two sizes: nothing to match
-        return None
-    plt = _pyplot()
-    cats = [c for c in _CLASSES if any(r["category"] == c for r in rows)]
-    methods = sorted({r["method"] for r in rows})
-    full = max(r["density"] or 0 for r in rows)
-    cmap = plt.get_cmap("tab10")
-    fig, axes = plt.subplots(1, len(cats), figsize=(4.2 * len(cats), 3.8), squeeze=False)
-    for ax, cat in zip(axes[0], cats):
-        for k, m in enumerate(methods):
-            rs = [r for r in rows if r["category"] == cat and r["method"] == m]
-            for sel, style in (([r for r in rs if r["density"] == full], "-"),
-                               ([r for r in rs if r["config"] == "default"], "--")):
-                sel = sorted(sel, key=lambda r: r["faces"])
-                if sel:
-                    ax.plot([r["faces"] for r in sel], [r["cd_p2s"] * 1e3 for r in sel], style, marker="o", ms=3.5,
-                            color=cmap(k % 10), label=m if style == "-" else None)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        _plain_ticks(ax, "y")
-        ax.grid(alpha=0.3, which="both")
-        ax.set_xlabel("output faces")
-        ax.set_title(cat, fontsize=9)
-    axes[0, 0].set_ylabel("CD p2s (x1e-3)")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"Matched budget, {kind} input: accuracy against mesh size (solid: configs at {full} points; "
-                 "dashed: default config at lower densities)", fontsize=9)
-    fig.tight_layout()
-    return _save(fig, plt, out)
-
-
-def _plain_ticks(ax, axes: str = "y") -> None:
-    """Log-axis ticks at 1, 2, 5 x 10^k, labelled as plain numbers (0.2, 1, 5) instead of powers of ten."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-
-    for name in axes:
-        axis = ax.yaxis if name == "y" else ax.xaxis
-        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        axis.set_minor_formatter(NullFormatter())
-
-
-def _save(fig, plt, out: Path) -> Path:
-    from eval.io import atomic_path
-
-    out = Path(out)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
-    return out
-
-
-def scan_renders(df, db: Path, work: Path, figdir: Path) -> list[tuple[str, Path]]:
-    """One figure per shape of the realistic-scan runs (point clouds): GT, the scanned input, each method's mesh.
-
-    A figure whose GT, input or a done run's mesh is missing here (a fresh clone with only the store export) is
-    not redrawn: the figure already in `figdir`, if any, is kept and listed."""
-    from eval.reports import figures, tables
-    from eval.runner import input_path, resolve_mesh_path, shape_dir
-    from eval.shapes import ShapeRef
-
-    sub = _labelled(df)
-    sub = sub[(sub["_name"] == "realistic_scan") & (sub["input_kind"] == "pointcloud")]
-    cache, out = work / "renders", []
-    for (cat, shape, setting), g in sub.groupby(["category", "shape", "_level"], sort=True):
-        first = g.sort_values("seed").iloc[0]
-        settings, name = first["inputs_json"], f"robustness_scan_{_safe(shape)}.png"
-        title = f"{shape} ({cat}), realistic scan: {setting}, seed {int(first['seed'])}"
-        ref = ShapeRef(id=shape, kind="file", source="", gt_hash=first["gt_hash"] or "")
-        gt = shape_dir(work, ref, float(settings.get("radius", 1.0))) / "gt.ply"
-        pc = input_path(work, ref, "pointcloud", settings, int(first["seed"]))
-        runs = g[g["seed"] == first["seed"]].sort_values(["method", "config_label"])
-        meshes = [resolve_mesh_path(r.to_dict(), db) for _, r in runs.iterrows()]
-        missing = not gt.is_file() or not pc.is_file() or any(
-            r["status"] == "done" and (p is None or not p.is_file()) for (_, r), p in zip(runs.iterrows(), meshes))
-        if missing:
-            if (figdir / name).is_file():
-                out.append((title, figdir / name))
-            continue
-        try:
-            panels = [("ground truth", figures.cached_render(gt, cache)),
-                      (f"input: {len(_points(pc))} scanned points", figures.cached_render(pc, cache, "points"))]
-            for (_, r), p in zip(runs.iterrows(), meshes):
-                label = tables.method_label(r["method"], r["config_label"], r["input_kind"])
-                if r["status"] == "done":
-                    panels.append((f"{label}\nCD p2s {tables.fmt(float(r['cd_p2s']) * 1e3)}e-3",
-                                   figures.cached_render(p, cache)))
-                else:
-                    panels.append((f"{label}\n{r['status']}", figures._placeholder(r["status"])))
-            out.append((title, figures.side_by_side(panels, figdir / name, title, cache=cache)))
-        except Exception as exc:  # noqa: BLE001 - a figure that cannot be drawn must not lose the tables
-            log.warning("realistic-scan renders for %s skipped: %s", shape, exc)
-    return out
-
-
-def _points(path: Path):
-    import numpy as np
-
-    with np.load(path) as z:
-        return z["points"]
-
-
-def _safe(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_@." else "_" for c in name)
 
 
 # --------------------------------------------------------------------------------------------------- files
@@ -522,7 +272,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
             ("corruption", "corruption", None), ("level", "level", None), ("n", "n", 1), ("failed", "failed", 1),
             ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1),
             ("faces", "faces", 1), ("components", "components", 1)]
-    shown = [{**r, "level": _fmt_level(r["level"])} for r in rows]
+    shown = [{**r, "level": fmt_level(r["level"])} for r in rows]
     out = ["# Robustness: corrupted inputs, simulated scans and matched budgets", "",
            f"{FRAME_NOTE} Corruptions and their levels (fractions of the radius for noise and depth noise; "
            "fraction of the points for outliers; points kept for density; densest / sparsest for nonuniform; "
@@ -536,7 +286,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "Each DMesh preset's mean CD p2s over the best mean CD p2s of the other methods, both over the same "
                 "shapes (those DMesh ran on); below 1, DMesh is the best. Presets only: the rows of studies with "
                 "other overrides are in the table above.",
-                "", markdown([{**r, "level": _fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS)]
+                "", markdown([{**r, "level": fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS)]
     if noise:
         from dmesh.recon.init import DEPTH_NOISY_RATIO, NOISY_RATIO
 
@@ -551,7 +301,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
                 "before the choice). `made again`: how many runs' point-cloud fits did not smooth at first, came "
                 "out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face) and were made again from "
                 "the smoothed input (noise the ratio missed; blank: runs by code from before the redo).",
-                "", markdown([{**r, "level": "" if r["level"] is None else _fmt_level(r["level"])} for r in noise],
+                "", markdown([{**r, "level": "" if r["level"] is None else fmt_level(r["level"])} for r in noise],
                              NOISE_COLUMNS)]
     if budget:
         out += ["", "## Matched budget: CD p2s against output size (clean geometry)", "",
@@ -592,7 +342,7 @@ def write_robustness(df, out: str | Path, db: str | Path | None = None, work: st
     Returns:
         (written paths, the HTML body of its section of index.html).
     """
-    from eval.reports.html import table_html
+    from eval.reports.render import table_html
     from eval.reports.tables import to_csv
 
     out = Path(out)
@@ -605,12 +355,12 @@ def write_robustness(df, out: str | Path, db: str | Path | None = None, work: st
     scans = scan_renders(df, Path(db), Path(work or Path(db).parent), figdir) if renders and db else []
     md, csv, bcsv = out / "robustness.md", out / "robustness.csv", out / "robustness_budget.csv"
     write_text(md, _markdown(rows, budget, ratios, figs, scans, noise_rows(df), _provenance(df)))
-    write_text(csv, to_csv([{**r, "level": _fmt_level(r["level"])} for r in rows], CSV_COLUMNS))
+    write_text(csv, to_csv([{**r, "level": fmt_level(r["level"])} for r in rows], CSV_COLUMNS))
     write_text(bcsv, to_csv(budget, BUDGET_COLUMNS))
     body = [f"<p class='links'><a href='{md.name}'>Markdown</a> <a href='{csv.name}'>CSV</a> "
             f"<a href='{bcsv.name}'>budget CSV</a></p>"]
     if ratios:
-        body.append(table_html([{**r, "level": _fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS))
+        body.append(table_html([{**r, "level": fmt_level(r["level"])} for r in ratios], RATIO_COLUMNS))
     body += [f"<img src='figures/{p.name}' alt='{_html.escape(p.stem)}'>" for p in figs]
     body += [f"<h3>{_html.escape(t)}</h3><img src='figures/{p.name}' alt='{_html.escape(t)}'>" for t, p in scans]
     return [md, csv, bcsv, *figs, *(p for _, p in scans)], "\n".join(body)

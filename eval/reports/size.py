@@ -21,7 +21,8 @@ from pathlib import Path
 
 from dmesh.recon.config import FAST_SEEDS
 from eval.io import atomic_path, write_text
-from eval.reports.tables import FRAME_NOTE, markdown, num, to_csv
+from eval.reports.render import markdown, num, to_csv
+from eval.reports.tables import FRAME_NOTE
 
 CLASSES = ("closed", "open", "mixed")
 SIZE_LABEL = re.compile(r"^num_init=\d+$")

@@ -2,16 +2,16 @@
 each a mesh-quality table (orientation against the GT, watertightness, manifoldness, topology).
 
 All tables are computed from `Store.dataframe()` (one row per run) and written as Markdown + CSV. CSV files
-keep raw units (Chamfer distances as plain distances in the normalised GT frame; times in seconds; RE / FP as
-fractions); Markdown shows Chamfer distances x1e-3 and RE / FP in percent, and says so.
+keep raw units (Chamfer distances as plain distances in the normalised GT frame; times in seconds; RE / FP in
+percent, like the paper); Markdown shows Chamfer distances x1e-3 and RE / FP in percent, and says so. Each
+table's columns are defined once (`table2_columns`, `TABLE1_COLUMNS`) and rendered to Markdown here and to HTML
+on index.html by the same renderer (`eval.reports.render`, whose helpers stay importable from here).
 
 Frame: every GT is normalised to vertex mean 0 and max vertex norm 1 (the DMesh frame), inputs and
 predictions live in that frame, and metrics are computed there.
 """
 from __future__ import annotations
 
-import html
-import io
 import logging
 import math
 from pathlib import Path
@@ -19,6 +19,7 @@ from pathlib import Path
 from eval.io import write_text
 from eval.reports import paper_numbers
 from eval.reports.labels import DISPLAY_NAMES, display_name, method_label, preset_of  # noqa: F401 - re-exported
+from eval.reports.render import cell, fmt, markdown, md_text, num, text, to_csv  # noqa: F401 - re-exported
 from eval.shapes import CATEGORIES
 
 log = logging.getLogger(__name__)
@@ -58,26 +59,6 @@ SPLIT_NOTE = ("Splits: *dev* is the shapes every constant and preset of the proj
               "over them.")
 
 
-def text(value) -> str:
-    """A stored text field for display: "" for None and for NaN (what pandas puts in an empty text column)."""
-    return value if isinstance(value, str) else ""
-
-
-def fmt(v, digits: int = 3) -> str:
-    """`digits` significant digits, never in exponent form below 1e6; "" for None / NaN."""
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v)
-    v = float(v)
-    if v == 0:
-        return "0"
-    if abs(v) >= 1e6:
-        return f"{v:.{digits - 1}e}"
-    decimals = max(0, digits - 1 - int(math.floor(math.log10(abs(v)))))
-    return f"{v:.{decimals}f}"
-
-
-
-
 def _metric(df, names):
     for n in names:
         if n in df.columns:
@@ -95,7 +76,8 @@ def table2(df, input_kind: str) -> list[dict]:
     Returns:
         rows per method, class and split (`split_column`): method, category, split, n (done runs), failed,
         cd_p2s, cd_l1, time_s (means over done runs; None if none), cd_p2s_sd (their spread), optional fscore /
-        normal_consistency / normal_consistency_oriented means, the `quality_summary` keys, paper_cd_l1 and paper_time_s (None when the paper has no row for the method).
+        normal_consistency / normal_consistency_oriented means, the `quality_summary` keys, paper_cd_l1 and
+        paper_time_s (None when the paper has no row for the method).
         Ordered by method, then closed / open / mixed. Runs still running (or pending) make no row: a method
         and class appear once a run of them has finished (done or failed).
     """
@@ -298,58 +280,6 @@ def per_shape(df, input_kind: str) -> list[dict]:
     return out
 
 
-def num(v):
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        return None
-    return None if math.isnan(v) else v
-
-
-def to_csv(rows: list[dict], columns: list[str]) -> str:
-    import csv
-
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({c: ("" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c]))
-                    for c in columns})
-    return buf.getvalue()
-
-
-def cell(v, scale: float | None, spec: str | None = None) -> str:
-    """Text of one table cell: `v * scale` with 3 significant digits (or the format `spec`); text as is."""
-    if v is None:
-        return ""
-    if scale is None or isinstance(v, str):
-        return str(v)
-    if isinstance(v, (int, bool)) and scale == 1 and spec is None:
-        return str(int(v))
-    if isinstance(v, float) and math.isnan(v):
-        return ""
-    return format(v * scale, spec) if spec else fmt(v * scale)
-
-
-def md_text(text) -> str:
-    """`text` (a name, a message, any value from data) as literal Markdown text on one line: `&`, `<` and `>`
-    as HTML entities, so that no shape name or error message becomes HTML in a report (a shape file named
-    `<img src=x onerror=...>.obj` shows as that text), and `|` escaped, so that it stays in its table cell."""
-    return html.escape(" ".join(str(text).split()), quote=False).replace("|", "\\|")
-
-
-def markdown(rows: list[dict], columns: list[tuple]) -> str:
-    """A Markdown table; columns are (key, header, scale[, format spec]) with scale None for text. Every
-    header and cell goes through `md_text`: the one place Markdown cells are formatted."""
-    head = "| " + " | ".join(md_text(c[1]) for c in columns) + " |\n"
-    sep = "|" + "|".join("---" if c[2] is None else "---:" for c in columns) + "|\n"
-    body = ""
-    for r in rows:
-        cells = [md_text(cell(r.get(c[0]), c[2], c[3] if len(c) > 3 else None)) for c in columns]
-        body += "| " + " | ".join(cells) + " |\n"
-    return head + sep + body
-
-
 TABLE2_CSV_COLUMNS = ["method", "category", "split", "n", "failed", "cd_p2s", "cd_p2s_sd", "cd_l1", "time_s",
                       "fscore", "normal_consistency", "paper_cd_l1", "paper_time_s", "normal_consistency_oriented",
                       "oriented_fraction", "oriented_fraction_min", "oriented_fraction_any_side",
@@ -358,9 +288,9 @@ TABLE2_CSV_COLUMNS = ["method", "category", "split", "n", "failed", "cd_p2s", "c
                       "self_intersecting_faces", "cpu_s"]
 
 
-def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_samples: int | None,
-                    title: str | None = None, provenance: list[dict] | None = None) -> str:
-    label = {"pointcloud": "point cloud", "multiview": "multi-view"}.get(input_kind, input_kind)
+def table2_columns(rows: list[dict]) -> list[tuple]:
+    """The columns of Table 2 (`table2` rows), in its Markdown report and on index.html alike: the optional
+    figures (CPU time, F-score, NC, oriented NC) only when some row has them."""
     cols = [("method", "method", None), ("category", "class", None), ("split", "split", None), ("n", "n", 1),
             ("failed", "failed", 1), ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_p2s_sd", "sd", 1e3),
             ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1)]
@@ -372,7 +302,13 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
         cols.append(("normal_consistency", "NC", 1))
     if any(r.get("normal_consistency_oriented") is not None for r in rows):
         cols.append(("normal_consistency_oriented", "oriented NC", 1))
-    cols += [("paper_cd_l1", "paper CD (x1e-3)", 1e3, ".2f"), ("paper_time_s", "paper time (s)", 1, ".2f")]
+    return cols + [("paper_cd_l1", "paper CD (x1e-3)", 1e3, ".2f"), ("paper_time_s", "paper time (s)", 1, ".2f")]
+
+
+def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_samples: int | None,
+                    title: str | None = None, provenance: list[dict] | None = None) -> str:
+    label = {"pointcloud": "point cloud", "multiview": "multi-view"}.get(input_kind, input_kind)
+    cols = table2_columns(rows)
     out = [f"# {md_text(title) if title else f'Table 2 ({label} input): Chamfer distance and time by class'}", "",
            f"Input: {label}. {FRAME_NOTE} Means over the successful runs of each class (n), with the number of "
            f"failed runs beside them; a failed run has no CD.", "", CD_NOTE, "",
@@ -442,6 +378,10 @@ def write_table2(df, out: str | Path, input_kind: str, n_samples: int | None = N
 _RE_NAMES = ("re", "RE", "recovery_ratio", "recovery")
 _FP_NAMES = ("fp", "FP", "false_positive_ratio", "false_positive")
 TABLE1_CSV_COLUMNS = ["shape", "method", "RE", "FP", "steps", "time_s", "paper_RE", "paper_FP"]
+#: The columns of Table 1 (`table1` rows), in its Markdown report and on index.html alike.
+TABLE1_COLUMNS = [("shape", "shape", None), ("method", "method", None), ("RE", "RE (%)", 100, ".2f"),
+                  ("FP", "FP (%)", 100, ".2f"), ("steps", "steps", 1), ("time_s", "time (s)", 1),
+                  ("paper_RE", "paper RE (%)", 100, ".2f"), ("paper_FP", "paper FP (%)", 100, ".2f")]
 
 
 def table1(df) -> list[dict]:
@@ -497,9 +437,7 @@ def write_table1(df, out: str | Path) -> tuple[Path, Path]:
           + FRAME_NOTE.replace("max vertex norm 1", "max vertex norm 0.8 (mesh to DMesh)"),
           ""]
     if rows:
-        md.append(markdown(rows, [("shape", "shape", None), ("method", "method", None), ("RE", "RE (%)", 100, ".2f"),
-                                  ("FP", "FP (%)", 100, ".2f"), ("steps", "steps", 1), ("time_s", "time (s)", 1),
-                                  ("paper_RE", "paper RE (%)", 100, ".2f"), ("paper_FP", "paper FP (%)", 100, ".2f")]))
+        md.append(markdown(rows, TABLE1_COLUMNS))
     else:
         md.append("_No mesh-to-DMesh runs in the store yet._\n")
     quality = _table1_quality(df)
