@@ -27,6 +27,7 @@ from eval.sweep import RunSpec, build_config, get_method
 
 log = logging.getLogger(__name__)
 
+
 def _threads() -> int:
     """Threads of torch's intra-op pool in this process (the pool the DMesh kernels follow)."""
     import torch

@@ -1,6 +1,6 @@
 """The experiment runner: prepares inputs once, runs every pending run of a sweep, stores each result.
 
-Flow of `run_sweep(sweep, work, ...)`:
+Flow of `run_sweep(sweep, runner)`:
 
 1. Resolve shapes and prepare each GT once (cached under `WORK/inputs/<shape>-<gt hash>/`): the GT is
    loaded or generated, classified (closed / open / mixed) and normalised (vertex mean at the origin, max
