@@ -78,22 +78,28 @@ class DMesh:
     def power_diagram(self) -> PowerDiagram:
         return PowerDiagram.from_points(self.points.detach(), self.weights.detach())
 
-    def extract_mesh(self, threshold: float = 0.5, mode: str = "all"):
-        """The final mesh: faces of the current WDT whose 3 vertices have real value > threshold, filtered
-        by `mode` ("all", "no_interior" or "sheet"; see `dmesh.extract`).
+    def extract_mesh(self, threshold: float = 0.5, mode: str = "all", *, surface=None, pd=None, normals=None,
+                     samples=None):
+        """The mesh of the current WDT: its faces whose 3 points have real value > threshold, filtered by `mode`
+        ("all", "no_interior" or "sheet"; `dmesh.extract.mesh_faces`), as a `trimesh.Trimesh` over the points
+        they use (float64).
 
-        Returns a `trimesh.Trimesh` over the used points only (vertices renumbered), without orientation
-        fixing (faces are sorted triples).
+        Args:
+            surface: None: those faces as they are (sorted triples, no winding; `dmesh.extract.extract`); a
+                `dmesh.surface.SurfaceConfig`: the surface step with those settings made of them (oriented,
+                closed where the shape is; `dmesh.surface.surface_mesh`), its counts in `metadata["surface"]`.
+            pd: the WDT's `PowerDiagram`, if one is built already.
+            normals, samples: the surface step's input normals and samples (`dmesh.surface.run`).
         """
-        import trimesh
+        from dmesh.extract import extract, mesh_faces
 
-        pd = self.power_diagram()
-        from dmesh.extract import mesh_faces
+        pd = pd if pd is not None else self.power_diagram()
+        if surface is None:
+            return extract(self, threshold, pd, mode)
+        from dmesh.surface import surface_mesh
 
-        faces = pd.faces[mesh_faces(pd, (self.reals.detach() > threshold).numpy(), mode)]
-        mesh = trimesh.Trimesh(self.points.detach().double().numpy(), faces, process=False)
-        mesh.remove_unreferenced_vertices()
-        return mesh
+        walls = mesh_faces(pd, self.reals.detach().numpy() > threshold, mode)
+        return surface_mesh(pd, walls, normals, samples, surface)
 
     def save(self, path: str | os.PathLike) -> None:
         """Writes points, weights, reals and the config to an `.npz` (atomically)."""

@@ -1,7 +1,7 @@
 """Local planes of point neighbourhoods (NumPy): how flat a point's neighbours lie and how far off their plane
-the point lies. Shared by the point-cloud outlier filter (`dmesh.recon.init.statistical_inliers`) and the sheet
-fills of the surface step (`dmesh.repair.sheet_holes`), which ask the same question of a sample and of a mesh
-vertex: does it lie on the surface its neighbours form?
+the point lies. Shared by the point-cloud outlier filter (`dmesh.recon.init.statistical_inliers`) and the surface
+step (`dmesh.surface.holes.sheet_hole_loops`, `dmesh.surface.debris.floating_crumbs`), which ask the same question
+of a sample and of a mesh vertex: does it lie on the surface its neighbours form?
 """
 from __future__ import annotations
 

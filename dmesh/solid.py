@@ -49,7 +49,7 @@ import logging
 
 import numpy as np
 
-from dmesh.repair import sum_along_walks
+from dmesh.surface.topology import sum_along_walks
 
 log = logging.getLogger(__name__)
 
@@ -203,7 +203,7 @@ def open_sheet_walls(pd, walls: np.ndarray, inside: np.ndarray, max_open: float,
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from dmesh.repair import edge_table
+    from dmesh.surface.topology import edge_table
 
     out = np.zeros(len(walls), bool)
     ids = np.flatnonzero(walls)
@@ -270,7 +270,7 @@ def repair_pinches(pd, inside: np.ndarray, rounds: int = 20) -> tuple[np.ndarray
     other's repair), are not flipped; when every group is, the whole star (ring) becomes inside, which takes
     the vertex (edge) off the boundary. Returns the new (T,) labels and the number of tet flips.
     """
-    from dmesh.repair import nonmanifold_edges, nonmanifold_vertices
+    from dmesh.surface.topology import nonmanifold_edges, nonmanifold_vertices
 
     inside = inside.copy()
     volume = tet_volumes(pd.points, pd.tets)
@@ -310,12 +310,12 @@ def large_lids(closed: np.ndarray, lids: np.ndarray, min_rim: int) -> np.ndarray
     `closed` (the walls between inside and outside tets) and `lids` (the other faces between them) make the
     whole boundary of the inside tets, a closed 2-manifold once pinches are repaired. A piece of lids (joined
     through edges with two lid faces) covers one hole of the walls, or several that the inside tets join, and
-    its rim is its edges shared with a wall. A small hole is better closed over its own rim (`dmesh.repair.
-    fill_holes`); a hole too large for that is where the input did not sample a closed surface (the part a
+    its rim is its edges shared with a wall. A small hole is better closed over its own rim (`dmesh.surface.
+    holes.fill_holes`); a hole too large for that is where the input did not sample a closed surface (the part a
     scanner did not see), and the inside tets' boundary across it keeps the solid's topology there (an
     unseen band around a torus stays a band, where a fill of each rim would cap it twice).
     """
-    from dmesh.repair import edge_pieces, edge_table
+    from dmesh.surface.topology import edge_pieces, edge_table
 
     L = len(lids)
     if L == 0:

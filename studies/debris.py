@@ -2,18 +2,18 @@
 
 Noise in the input (and, less often, a clean sample of a thin part) leaves sheets riddled with small holes and
 strewn with pieces of a triangle or two lying in the band of the surface beside them. The extraction
-(`dmesh.extract.surface`) now drops a piece of at most `dmesh.repair.STACKED_MAX_FACES` faces lying within
-`SurfaceConfig.stacked` (1) local edge lengths over a larger piece (`dmesh.repair.stacked_pieces`: over one of
-its faces, not beside it in a hole), and fills a
-sheet's holes of at most `SurfaceConfig.max_sheet_hole` (24) edges and as many of the piece's mean edge lengths,
-never a piece's longest loop (its rim) nor one whose area is over a quarter of its piece's
-(`dmesh.repair.sheet_holes`, filled like the closed part's holes by `dmesh.repair.fill_holes`), unless a vertex
-of its loop lies off the surface its neighbouring vertices form (`dmesh.repair.STRAY_OFF`: an outlier the mesh
-reached; `sheet holes beside strays too` fills those as well, as the first version did). A piece of at most 4
-faces floating more than `dmesh.repair.FLOATING` median edge lengths from every larger piece is dropped unless it
-lies in the plane of the surface nearest it (`dmesh.repair.floating_crumbs`, `FLOATING_BESIDE`; `floating crumbs
-kept`: as before the test), and so is a piece of up to `dmesh.repair.FLOATING_MAX_FACES` faces floating as far
-and farther than its own extent (`floating crumbs only`: as before that).
+(the surface step, `dmesh.surface`) now drops a piece of at most `stacked.max_faces` (64) faces lying within
+`stacked.within` (1) local edge lengths over a larger piece (`dmesh.surface.debris.stacked_pieces`: over one of
+its faces, not beside it in a hole), and fills a sheet's holes of at most `sheet_holes.max_edges` (24) edges and
+as many of the piece's mean edge lengths, never a piece's longest loop (its rim) nor one whose area is over a
+quarter of its piece's (`dmesh.surface.holes.sheet_hole_loops`, filled like the closed part's holes by
+`dmesh.surface.holes.fill_holes`), unless a vertex of its loop lies off the surface its neighbouring vertices
+form (`sheet_holes.stray_off`: an outlier the mesh reached; `sheet holes beside strays too` fills those as well,
+as the first version did). A piece of at most 4 faces floating more than `crumbs.floating` median edge lengths
+from every larger piece is dropped unless it lies in the plane of the surface nearest it
+(`dmesh.surface.debris.floating_crumbs`, `crumbs.beside`; `floating crumbs kept`: as before the test), and so is
+a piece of up to `crumbs.floating_max_faces` faces floating as far and farther than its own extent (`floating
+crumbs only`: as before that). The settings are `SurfaceConfig`'s sections (docs/surface.md).
 
 One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper`'s cache: 100K points of each
 shape; `noise`: Gaussian noise of that fraction of the radius; `scan`: the 6-camera scan with estimated normals;
@@ -32,10 +32,8 @@ Regenerate: `python -m studies debris` (17 runs and 170 extractions, about 50 mi
 """
 from __future__ import annotations
 
-import contextlib
-
 from eval.bench.common import markdown_table, write_report
-from studies.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run, set_constant
+from studies.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run
 
 INPUTS = (("wavy_sheet", "noise 0.01", {"noise": 0.01}), ("wavy_sheet", "clean", {}),
           ("wavy_sheet", "noise 0.0025", {"noise": 0.0025}), ("bowl", "clean", {}), ("bowl", "noise 0.01", {"noise": 0.01}),
@@ -44,23 +42,16 @@ INPUTS = (("wavy_sheet", "noise 0.01", {"noise": 0.01}), ("wavy_sheet", "clean",
           ("flag_box", "scan", SCAN), ("flag_box", "realistic", REALISTIC), ("torus", "clean", {}),
           ("mixed/suzanne.obj", "clean", {}), ("bowl", "outliers 0.1", {"outliers": 0.1}),
           ("wavy_sheet", "outliers 0.1", {"outliers": 0.1}), ("flag_box", "outliers 0.1", {"outliers": 0.1}))
-#: (label, SurfaceConfig overrides, {dmesh.repair constant: value} or None for the defaults)
-VARIANTS = (("neither (before)", {"stacked": 0.0, "max_sheet_hole": 0}, None),
-            ("stacked pieces only", {"max_sheet_hole": 0}, None), ("sheet holes only", {"stacked": 0.0}, None),
-            ("both (default)", {}, None), ("stacked within 0.5", {"stacked": 0.5}, None),
-            ("stacked beside faces too", {}, {"STACKED_OVER": 1e9}),
-            ("sheet holes beside strays too", {}, {"STRAY_OFF": float("inf")}),
-            ("floating crumbs kept", {}, {"FLOATING": float("inf")}),
-            ("floating crumbs only", {}, {"FLOATING_MAX_FACES": 0}),
-            ("sheet holes up to 12", {"max_sheet_hole": 12}, None), ("sheet holes up to 48", {"max_sheet_hole": 48}, None))
-
-
-def _repair_constants(extra: dict | None):
-    """A context with the `dmesh.repair` constants of `extra` set (None: all defaults)."""
-    stack = contextlib.ExitStack()
-    for name, value in (extra or {}).items():
-        stack.enter_context(set_constant("dmesh.repair", name)(value))
-    return stack
+#: (label, overrides of the run's SurfaceConfig)
+VARIANTS = (("neither (before)", {"skip": ["stacked", "sheet_holes"]}),
+            ("stacked pieces only", {"skip": ["sheet_holes"]}), ("sheet holes only", {"skip": ["stacked"]}),
+            ("both (default)", {}), ("stacked within 0.5", {"stacked.within": 0.5}),
+            ("stacked beside faces too", {"stacked.over": 1e9}),
+            ("sheet holes beside strays too", {"sheet_holes.stray_off": float("inf")}),
+            ("floating crumbs kept", {"crumbs.floating": float("inf")}),
+            ("floating crumbs only", {"crumbs.floating_max_faces": 0}),
+            ("sheet holes up to 12", {"sheet_holes.max_edges": 12}),
+            ("sheet holes up to 48", {"sheet_holes.max_edges": 48}))
 
 
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
@@ -68,7 +59,7 @@ def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.runner import load_gt
 
     points, normals, gt_path, category = cloud(shape, corruption)
-    res, meshes = extractions(points, normals, VARIANTS, _repair_constants)
+    res, meshes = extractions(points, normals, VARIANTS)
     gt = load_gt(gt_path)
     gt_components = mesh_stats(gt)["components"]
     rows = []

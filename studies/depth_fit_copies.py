@@ -4,7 +4,7 @@ together (`grouped`, `fit_to_depth(groups=...)`), and grouped with the offsets t
 until they do not (`uncrossed`, `DepthFitConfig.uncross`, the preset's own stage).
 
 Where sheets meet, the surface step gives each its own copy of the vertex there, 5 % of an edge into its
-own faces (`dmesh.repair.separate_copies`). For each shape the `fast` preset (`MultiViewConfig.fast()`, seed
+own faces (`dmesh.surface.finish.separate_copies`). For each shape the `fast` preset (`MultiViewConfig.fast()`, seed
 0) runs once without its last stage on the Table 2 capture (64 views, 256 pixels, cached in `runs/paper`).
 Its mesh is fitted the three ways; groups come from `dmesh.recon.multiview.copy_groups` (as the preset
 does). Figures: self-intersecting faces (`eval.metrics.self_intersecting_faces`, MeshLab's count; also of
@@ -52,22 +52,22 @@ def one_shape(shape: str) -> dict:
 
     views, gt_path, category = _capture(shape)
     gt = load_gt(gt_path)
-    # The points the surface step splits are the vertices of the mesh it is given (the selected epoch's, not
+    # The points the surface step splits are the vertices of the faces it is given (the selected epoch's, not
     # always the final DMesh's points), which the preset keeps inside its run: recorded here on the way in.
     given = []
 
-    def surface_of_mesh(mesh, *args, **kwargs):
-        given.append(np.asarray(mesh.vertices, dtype=np.float64).copy())
-        return surface(mesh, *args, **kwargs)
+    def surface_mesh(pd, walls, *args, **kwargs):
+        given.append(np.asarray(pd.points[np.unique(pd.faces[walls])], dtype=np.float64))
+        return surface(pd, walls, *args, **kwargs)
 
-    surface = multiview.surface_of_mesh
-    multiview.surface_of_mesh = surface_of_mesh
+    surface = multiview.surface_mesh
+    multiview.surface_mesh = surface_mesh
     try:
         t0 = time.perf_counter()
         res = multiview.reconstruct(views, dataclasses.replace(MultiViewConfig.fast(), seed=0, depth_fit=False))
         run_s = time.perf_counter() - t0
     finally:
-        multiview.surface_of_mesh = surface
+        multiview.surface_mesh = surface
     vw = check_views(views)
     center, scale, w2c, _ = normalisation(vw)  # the frame of the run (`res.center`, `res.scale`)
     v = (np.asarray(res.mesh.vertices, dtype=np.float64) - center) * scale

@@ -5,7 +5,7 @@ Voronoi poles as imaginary points, `vertices="poles"`, and the 8 corners of the 
 mode: "all" (every face of three real points: upstream's point-cloud extraction), "no_interior" (also without
 faces between two all-real tets: upstream's multi-view `remove_invisible`) and "sheet" (of each block of all-real
 tets, only the larger of its two boundary sheets). No optimisation step is taken, so the figures show what the
-modes do to the same faces, not what a run's output is (that adds `dmesh.extract.surface`).
+modes do to the same faces, not what a run's output is (that adds the surface step, `dmesh.surface`).
 
 Inputs: 40K samples (seed 0) of the torus, genus2, bowl (open) and plant (mixed), in the GT frame (vertex mean
 0, max vertex norm 1). Figures: faces, non-manifold edges (more than two faces), boundary edges, CD p2s against
@@ -48,9 +48,9 @@ def _rows(shape: str) -> list[dict]:
     from datasets.normalize import normalize
     from datasets.sampling import sample_points
     from datasets.synthetic import generate
-    from dmesh import repair
     from dmesh.extract import mesh_faces
     from dmesh.recon.init import seeds_and_voronoi
+    from dmesh.surface.topology import edge_table
     from dmesh.wdt import PowerDiagram
     from eval.metrics import chamfer_l1_p2s
 
@@ -66,7 +66,7 @@ def _rows(shape: str) -> list[dict]:
         t0 = time.perf_counter()
         faces = np.asarray(pd.faces)[mesh_faces(pd, real, mode)]
         seconds = time.perf_counter() - t0
-        counts = repair.edge_table(faces)[2]
+        counts = edge_table(faces)[2]
         mesh = trimesh.Trimesh(positions, faces, process=False)
         rows.append({"shape": shape, "mode": mode, "faces": int(len(faces)),
                      "nonmanifold_edges": int((counts > 2).sum()), "boundary_edges": int((counts == 1).sum()),

@@ -6,8 +6,8 @@ boundary in proportion to their faces; an intact surface's rim grows with the sq
 So boundary edges per face alone (`FRAGMENTED_BOUNDARY`) also flags a small intact mesh of a shape with much rim
 (suzanne's eyes and ears at 2K faces); the preset also asks for more than `FRAGMENTED_RIM` boundary edges per
 root face (boundary / sqrt(faces)). Both count the oriented surface before the clean-up of its sheets
-(info["surface"]'s `rim_edges` and `rim_faces`: `dmesh.repair.rim_edge_count`, an edge with more than two faces
-counting once per face), whose hole fills would hide shreds.
+(info["surface"]'s `rim_edges` and `rim_faces`, the rim stage's: `dmesh.surface.topology.rim_edge_count`, an edge
+with more than two faces counting once per face), whose hole fills would hide shreds.
 
 Part 1, fresh runs: the `fast` preset with the redo off, on 20K area-uniform samples (seed 0) of a shape at a
 given seed count, clean or with Gaussian noise of sigma x the unit radius (generator seed 2). `per face`: boundary

@@ -2,15 +2,15 @@
 without them, and their settings.
 
 A scanner leaves parts of a closed surface unsampled (the inside of a torus's hole, a concave corner). The
-extraction (`dmesh.extract.surface`) labels the triangulation's tets inside or outside and keeps the mesh
-faces between the two; a hole in them of more than `SurfaceConfig.max_hole` (64) edges used to stay open. Now
-the inside tets' own boundary closes it (`lids`: `dmesh.solid.large_lids`), refined and faired by CGAL
-(`dmesh.native.refine_and_fair`, density control factor `LID_DENSITY`, thin-plate continuity `fairing` 1).
+surface step (`dmesh.surface`) labels the triangulation's tets inside or outside and keeps the mesh faces
+between the two; a hole in them of more than `lids.max_hole` (64) edges used to stay open. Now the inside tets'
+own boundary closes it (the lids stage: `dmesh.solid.large_lids`), refined and faired by CGAL (the fair stage:
+`dmesh.native.refine_and_fair`, density control factor `fair.density`, thin-plate continuity `fair.continuity` 1).
 Where the tets' labelling closed such a stretch with faces of the triangulation that are walls (the mesh's own
 faces, between samples on either side of the stretch), there was no hole to lid, and those long flat faces cut
-the chord across it. Closed-part faces whose longest edge is over `SurfaceConfig.spans` (6) times the median
-edge length are now refined and faired with the lids, their corners held (`dmesh.repair.long_faces`; `no
-spans`: as before; `spans 4` / `spans 8`: other thresholds).
+the chord across it. Closed-part faces whose longest edge is over `spans.ratio` (6) times the median edge length
+are now refined and faired with the lids, their corners held (`dmesh.surface.debris.long_faces`; `no spans`: as
+before; `spans 4` / `spans 8`: other thresholds).
 
 One `fast` run per input (seed 0), on the robustness sweep's inputs (`runs/paper`'s cache: 100K points of each
 shape, `scan`: the 6-camera scan with estimated normals; `realistic`: the same with range noise 0.0025 and 1 %
@@ -27,7 +27,7 @@ the torus scan only).
 from __future__ import annotations
 
 from eval.bench.common import markdown_table, write_report
-from studies.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run, set_constant
+from studies.surface_variants import REALISTIC, SCAN, cloud, extractions, same_as_run
 
 INPUTS = (("torus", "scan", SCAN), ("genus2", "scan", SCAN), ("plant", "scan", SCAN), ("flag_box", "scan", SCAN),
           ("torus", "realistic", REALISTIC), ("genus2", "realistic", REALISTIC), ("plant", "realistic", REALISTIC),
@@ -37,12 +37,12 @@ INPUTS = (("torus", "scan", SCAN), ("genus2", "scan", SCAN), ("plant", "scan", S
           ("plant", "nonuniform 8", {"nonuniform": 8.0}),
           # long faces of a sampled stretch, not a span: the sparse end of a non-uniform cloud
           ("torus", "nonuniform 8", {"nonuniform": 8.0}))
-#: (label, SurfaceConfig overrides, LID_DENSITY or None for the default)
-VARIANTS = (("no lids", {"lids": False}, None), ("flat lids", {"fairing": -1}, None),
-            ("faired, density sqrt(2)", {}, 2.0 ** 0.5), ("faired (default)", {}, None),
-            ("faired, density 8", {}, 8.0), ("membrane (fairing 0)", {"fairing": 0}, None),
-            ("curvature (fairing 2)", {"fairing": 2}, None), ("no spans", {"spans": 0.0}, None),
-            ("spans 4", {"spans": 4.0}, None), ("spans 8", {"spans": 8.0}, None))
+#: (label, overrides of the run's SurfaceConfig)
+VARIANTS = (("no lids", {"skip": ["lids"]}), ("flat lids", {"skip": ["fair"]}),
+            ("faired, density sqrt(2)", {"fair.density": 2.0 ** 0.5}), ("faired (default)", {}),
+            ("faired, density 8", {"fair.density": 8.0}), ("membrane (fairing 0)", {"fair.continuity": 0}),
+            ("curvature (fairing 2)", {"fair.continuity": 2}), ("no spans", {"spans.ratio": 0.0}),
+            ("spans 4", {"spans.ratio": 4.0}), ("spans 8", {"spans.ratio": 8.0}))
 
 
 def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
@@ -50,7 +50,7 @@ def _rows(shape: str, kind: str, corruption: dict) -> list[dict]:
     from eval.runner import load_gt
 
     points, normals, gt_path, category = cloud(shape, corruption)
-    res, meshes = extractions(points, normals, VARIANTS, set_constant("dmesh.extract", "LID_DENSITY"))
+    res, meshes = extractions(points, normals, VARIANTS)
     gt = load_gt(gt_path)
     rows = []
     for label, (mesh, seconds) in meshes.items():

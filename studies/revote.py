@@ -4,8 +4,8 @@ An open sheet over a solid (a mushroom's cap over its stalk) fools the walks of 
 crosses the solid's surface and then the sheet counts two crossings and calls the tet outside. The second
 vote sets such sheets aside. Each case is one point-cloud run of DMesh (`fast` preset, 100K samples with
 their normals, seed 0; once with `num_init` 2500, a coarse mesh like the `paper` preset's, and once with the
-preset's 40K seeds) whose final state is extracted twice: "one vote" (`SurfaceConfig(revote=False)`, the
-surface step without the second vote) and "two votes" (the default). Shapes: the mixed class (plant, mushroom, flag_box,
+preset's 40K seeds) whose final state is extracted twice: "one vote" (the surface step with its revote stage
+skipped, `surface.skip=[revote]`) and "two votes" (the default). Shapes: the mixed class (plant, mushroom, flag_box,
 suzanne), where sheets and solids meet, and one closed and one open shape as controls.
 
 Figures as in `eval.bench.quality` (`oriented`, `any_side`, watertight, boundary and non-manifold edges, CD p2s
@@ -25,7 +25,6 @@ NUM_INIT = (2500, 40_000)
 
 def _case(name: str, num_init: int) -> list[dict]:
     from datasets.sampling import sample_points
-    from dmesh.extract import SurfaceConfig, extract
     from dmesh.recon.pointcloud import PointCloudConfig, reconstruct
     from eval.metrics import topology
 
@@ -36,8 +35,8 @@ def _case(name: str, num_init: int) -> list[dict]:
     normals = ((np.asarray(pts, np.float64) - res.center) * res.scale, np.asarray(nrm, np.float64))
     rows = []
     for variant, revote in (("one vote", False), ("two votes", True)):
-        mesh = extract(res.dmesh, cfg.threshold, None, cfg.extraction, orient=True, normals=normals,
-                       config=SurfaceConfig(workers=cfg.workers, revote=revote))
+        surface = cfg.surface.with_overrides({"skip": [] if revote else ["revote"]})
+        mesh = res.dmesh.extract_mesh(cfg.threshold, cfg.extraction, surface=surface, normals=normals)
         info = mesh.metadata.pop("surface")
         mesh.vertices = np.asarray(mesh.vertices) / res.scale + res.center
         rows.append({"shape": name, "num_init": num_init, "variant": variant} | figures(mesh, gt)

@@ -1,14 +1,13 @@
 """Shared by the surface-step benches (`lids`, `debris`): one point-cloud `fast` run per robustness input, its
 final DMesh extracted again with each variant's surface settings.
 
-`dmesh.recon.pointcloud.reconstruct` extracts its final DMesh once, inside the run; these benches wrap that
-call (`pointcloud.extract`) for the length of one run, so each variant sees exactly the DMesh, threshold and
-normals the run's own extraction saw.
+`dmesh.recon.pointcloud.reconstruct` makes the surface of its final DMesh once, inside the run; these benches
+wrap that call (`dmesh.surface.surface_mesh`) for the length of one run, so each variant sees exactly the
+faces, normals and samples the run's own surface step saw, with the run's surface settings plus the variant's
+overrides (`SurfaceConfig.with_overrides`: "stacked.within", "skip", ...).
 """
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import time
 
 import numpy as np
@@ -29,51 +28,29 @@ def cloud(shape: str, corruption: dict):
         return z["points"], z["normals"], gt_path, ref.category
 
 
-def set_constant(module: str, name: str):
-    """A `context` for `extractions`: value -> a context manager that sets `module.name` to the value for its
-    length (None: leaves the default)."""
-    import importlib
-
-    @contextlib.contextmanager
-    def setting(value):
-        mod = importlib.import_module(module)
-        before = getattr(mod, name)
-        setattr(mod, name, before if value is None else value)
-        try:
-            yield
-        finally:
-            setattr(mod, name, before)
-
-    return setting
-
-
-def extractions(points, normals, variants, context=None):
+def extractions(points, normals, variants):
     """The `fast` run (seed 0) and {label: (mesh in the run's frame, seconds)} of each variant.
 
-    `variants`: (label, SurfaceConfig overrides, extra) triples; `context(extra)`, when given, is a context
-    manager the variant's extraction runs in (e.g. a module constant set for it)."""
+    `variants`: (label, overrides of the run's `SurfaceConfig`) pairs."""
     import dmesh.recon.pointcloud as pc
+    import dmesh.surface as surface
     from dmesh.recon.config import PointCloudConfig
 
     meshes = {}
-    real_extract = pc.extract
+    real_surface_mesh = surface.surface_mesh
 
-    def extract_all(dm, threshold, pd, mode, orient, normals, config, samples=None):
-        for label, overrides, extra in variants:
-            with context(extra) if context else contextlib.nullcontext():
-                t0 = time.perf_counter()
-                mesh = real_extract(dm, threshold, pd, mode, orient=orient, normals=normals,
-                                    config=dataclasses.replace(config, **overrides), samples=samples)
-                seconds = time.perf_counter() - t0
-            meshes[label] = (mesh, seconds)
-        return real_extract(dm, threshold, pd, mode, orient=orient, normals=normals, config=config,
-                            samples=samples)
+    def every_variant(pd, walls, normals=None, samples=None, config=None):
+        for label, overrides in variants:
+            t0 = time.perf_counter()
+            mesh = real_surface_mesh(pd, walls, normals, samples, config.with_overrides(overrides))
+            meshes[label] = (mesh, time.perf_counter() - t0)
+        return real_surface_mesh(pd, walls, normals, samples, config)
 
-    pc.extract = extract_all
+    surface.surface_mesh = every_variant  # (`DMesh.extract_mesh` looks it up at each call)
     try:
         res = pc.reconstruct(points, normals, PointCloudConfig.fast(seed=0))
     finally:
-        pc.extract = real_extract
+        surface.surface_mesh = real_surface_mesh
     for mesh, _ in meshes.values():
         mesh.vertices = np.asarray(mesh.vertices) / res.scale + res.center  # the run's own frame change
     return res, meshes

@@ -85,14 +85,23 @@ def cycle(face) -> tuple:
     return tuple(face[k:]) + tuple(face[:k])
 
 
+def grid_sheet(n: int, z: float = 0.0, offset=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex grid of unit spacing in the plane z, two triangles per square, wound upward."""
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    v = np.stack([x.ravel() + offset[0], y.ravel() + offset[1], np.full(n * n, z)], 1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a, b, c, d = (i * n + j).ravel(), ((i + 1) * n + j).ravel(), ((i + 1) * n + j + 1).ravel(), (i * n + j + 1).ravel()
+    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
 def check_manifold(faces: np.ndarray, points: np.ndarray):
     """Asserts no edge has more than two faces and every vertex one fan, once vertices on one position are
     merged (as a file of the mesh reads back: a pinch split into copies on one point is still a pinch)."""
     from datasets.meshes import merge_vertices
-    from dmesh import repair
+    from dmesh.surface.topology import nonmanifold_edges, nonmanifold_vertices
 
     _, merged = merge_vertices(points, faces)
-    assert len(repair.nonmanifold_edges(merged)) == 0 and len(repair.nonmanifold_vertices(merged)) == 0
+    assert len(nonmanifold_edges(merged)) == 0 and len(nonmanifold_vertices(merged)) == 0
 
 
 def check_closed(faces: np.ndarray, points: np.ndarray):

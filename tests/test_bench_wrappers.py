@@ -7,7 +7,7 @@ import numpy as np
 from datasets.normalize import normalize
 from datasets.sampling import sample_points
 from datasets.synthetic import generate
-from dmesh import repair
+from dmesh.surface.topology import hole_loops
 
 
 def test_surface_variants_extract_the_runs_final_dmesh_again():
@@ -21,9 +21,9 @@ def test_surface_variants_extract_the_runs_final_dmesh_again():
     gt = normalize(generate("wavy_sheet"))[0]
     pts, nrm = sample_points(gt, 20_000, 0)
     pts = add_noise(pts, 0.005, seed=0)
-    res, meshes = extractions(pts, nrm, [("default", {}, None), ("orient only", {"clean": False}, None)])
+    res, meshes = extractions(pts, nrm, [("default", {}), ("orient only", {"clean": False})])
     assert set(meshes) == {"default", "orient only"}
     assert same_as_run(meshes["default"][0], res) == "yes"
     assert same_as_run(meshes["orient only"][0], res) == "no"
-    holes = {k: len(repair.hole_loops(np.asarray(m.faces))) for k, (m, _) in meshes.items()}
+    holes = {k: len(hole_loops(np.asarray(m.faces))) for k, (m, _) in meshes.items()}
     assert holes["orient only"] > holes["default"], holes

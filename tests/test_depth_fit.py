@@ -107,8 +107,9 @@ def test_bad_settings_are_named(bad):
 def _split_at_equator(mesh):
     """The sphere as two pieces that meet along its equator: every vertex shared by a face above and one below
     gets a second copy for the faces below, and the copies move a little into their own faces, as the surface
-    step splits a point where sheets meet (`dmesh.repair.separate_copies`). Returns (vertices, faces, source)."""
-    from dmesh.repair import separate_copies
+    step splits a point where sheets meet (`dmesh.surface.finish.separate_copies`). Returns (vertices, faces,
+    source)."""
+    from dmesh.surface.finish import separate_copies
 
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     below = v[f].mean(1)[:, 2] < 0
@@ -171,7 +172,7 @@ def test_offsets_that_make_faces_cross_go_back():
     crosses another (half of them do: the foot then stays 0.004 above the floor), the far triangle keeps its
     own; with the wall lifted instead nothing is held back."""
     from dmesh.recon.depth_fit import undo_crossings
-    from dmesh.repair import FaceIndex
+    from dmesh.surface.crossings import FaceIndex
 
     v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0],            # the floor
                   [-0.3, 0, 0.005], [0.3, 0, 0.005], [0, 0, 1],              # the wall

@@ -1,18 +1,16 @@
-"""Mesh extraction (`dmesh.extract`): the modes (upstream's, interior removal, one sheet per real-tet cluster),
-the closed surface of a labelling (holes filled, fins dropped), and the visibility and depth filters."""
+"""Mesh extraction (`dmesh.extract`): the modes (upstream's, interior removal, one sheet per real-tet cluster), the
+raw-faces mesh of a DMesh, and the visibility and depth filters. The surface step made of these faces:
+tests/test_surface_*.py."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
-import trimesh
 
 from datasets import capture as cap
-from dmesh import repair, solid, wdt
-from dmesh.extract import (SurfaceConfig, depth_consistent_faces, mesh_faces, surface, surface_of_mesh,
-                           visible_faces)
+from dmesh import wdt
+from dmesh.extract import depth_consistent_faces, mesh_faces, visible_faces
 from dmesh.recon.init import seeds_and_voronoi
 from dmesh.recon.views import check_views
-from common import ball_labels, check_closed, cloud_diagram, cycle
 
 _NO_GL = cap.gl_problem()
 needs_gl = pytest.mark.skipif(_NO_GL is not None, reason=f"no headless OpenGL (OSMesa/EGL): {_NO_GL}")
@@ -103,72 +101,34 @@ def test_sheet_of_a_sampled_torus_is_closed_and_manifold():
     assert 3000 - len(counts) + n_faces == 0                        # ... of genus 1 over all 3000 seeds
 
 
+def test_a_dmesh_gives_its_raw_faces_or_their_surface_through_one_argument():
+    """`DMesh.extract_mesh`: without `surface`, its mesh faces as sorted triples (`dmesh.extract.extract`); with a
+    `SurfaceConfig`, the surface step made of the same faces (`dmesh.surface.surface_mesh`): here, sampled from
+    a sphere, a closed outward mesh, its counts in the metadata."""
+    from datasets import normalize, sampling, synthetic
+    from dmesh.extract import extract
+    from dmesh.model import DMesh
+    from dmesh.surface import SurfaceConfig, surface_mesh
+
+    gt, _ = normalize.normalize(synthetic.generate("sphere", seed=0))
+    samples, _ = sampling.sample_points(gt, 4000, seed=0)
+    pos, reals = seeds_and_voronoi(samples, 800, np.random.default_rng(0), vertices="poles")
+    dm = DMesh(pos, np.ones(len(pos)), reals)
+    raw = dm.extract_mesh(mode="sheet")
+    assert np.array_equal(np.asarray(raw.faces), np.sort(raw.faces, axis=1)) and "surface" not in raw.metadata
+    assert np.array_equal(raw.faces, extract(dm, mode="sheet").faces)
+    pd = dm.power_diagram()
+    made = dm.extract_mesh(mode="sheet", surface=SurfaceConfig(), pd=pd)
+    same = surface_mesh(pd, mesh_faces(pd, reals > 0.5, "sheet"))
+    assert np.array_equal(made.faces, same.faces) and np.array_equal(made.vertices, same.vertices)
+    assert len(made.faces) == len(raw.faces) and made.is_watertight and made.volume > 0
+    assert made.metadata["surface"]["closed_faces"] == len(raw.faces)
+
+
 def test_unknown_mode_is_an_error():
     pd = wdt.PowerDiagram.from_points(np.eye(4, 3) + 0.1 * np.arange(4)[:, None], None)
     with pytest.raises(ValueError, match="extraction mode"):
         mesh_faces(pd, np.ones(4, bool), "both")
-
-
-# -------------------------------------------------------------------------------------- closed surfaces
-
-def test_surface_closes_a_holed_boundary_and_drops_a_fin():
-    pd = cloud_diagram(seed=2)
-    inside = ball_labels(pd)
-    walls = solid.boundary_mask(pd, inside)
-    truth = solid.oriented_boundary(pd, inside, np.flatnonzero(walls))
-    holed = walls.copy()
-    holed[np.flatnonzero(walls)[0]] = False  # a one-triangle hole
-    # A fin: a face outside the ball that shares an edge with the surface.
-    edges = {tuple(e) for e in np.sort(repair.edge_table(truth)[0], axis=1).tolist()}
-    fin = next(i for i in np.flatnonzero(~walls)
-               if any(tuple(sorted(e)) in edges for e in np.sort(repair.edge_table(pd.faces[i:i + 1])[0], 1).tolist()))
-    holed[fin] = True
-    out = surface(pd, holed, config=SurfaceConfig(directions=9))
-    assert out.info["holes_filled"] == 1 and out.info["fins_dropped"] == 1 and out.info["sheet_faces"] == 0
-    check_closed(out.faces, pd.points)
-    # The filled surface is the original one, wound the same way.
-    assert {cycle(f) for f in out.faces.tolist()} == {cycle(f) for f in truth.tolist()}
-
-
-@pytest.mark.parametrize("holed", [False, True], ids=["closed", "holed"])
-def test_a_sheet_over_a_solid_does_not_hollow_it(holed):
-    """A ball under a wide cap (a mushroom's stalk under its cap): walks from the ball that pass through the
-    cap cross two walls, so the first vote calls the whole ball outside; with the cap set aside the second
-    vote recovers it exactly (and, with a one-triangle hole in the ball, fills that hole)."""
-    pd = cloud_diagram(n=4000, seed=5)
-    centroid = pd.points[pd.tets.astype(np.int64)].mean(1)
-    ball = solid.repair_pinches(pd, np.linalg.norm(centroid - [0.0, -0.2, 0.0], axis=1) < 0.35)[0]
-    big = solid.repair_pinches(pd, np.linalg.norm(centroid, axis=1) < 0.85)[0]
-    cap = solid.boundary_mask(pd, big) & (pd.points[pd.faces.astype(np.int64)].mean(1)[:, 1] > 0.0)
-    truth = solid.boundary_mask(pd, ball)
-    walls = truth | cap
-    if holed:
-        walls[np.flatnonzero(truth)[0]] = False
-    config = SurfaceConfig()
-    first = surface(pd, walls, config=SurfaceConfig(revote=False))
-    assert first.info["inside_tets"] == 0  # the failure the second vote is for
-    out = surface(pd, walls, config=config)
-    assert out.info["sheets_set_aside"] == cap.sum() and out.info["inside_tets"] == ball.sum()
-    assert out.info["holes_filled"] == int(holed)
-    closed = out.faces[:out.closed]
-    check_closed(closed, pd.points[out.vertices])
-    expected = solid.oriented_boundary(pd, ball, np.flatnonzero(truth))
-    assert {cycle(out.vertices[f]) for f in closed.tolist()} == {cycle(f) for f in expected.tolist()}
-    assert len(out.faces) - out.closed == cap.sum()  # the cap stays, as a sheet
-
-
-def test_surface_of_a_renumbered_mesh_and_a_foreign_one():
-    pd = cloud_diagram(seed=4)
-    inside = ball_labels(pd)
-    walls = solid.boundary_mask(pd, inside)
-    mesh = trimesh.Trimesh(pd.points, pd.faces[walls], process=False)
-    mesh.remove_unreferenced_vertices()
-    out = surface_of_mesh(mesh, pd)
-    closed = check_closed(np.asarray(out.faces), np.asarray(out.vertices))
-    assert closed.volume == pytest.approx(solid.tet_volumes(pd.points, pd.tets)[inside].sum(), rel=1e-9)
-    mesh.vertices[0] += 0.01
-    with pytest.raises(ValueError, match="not points of the triangulation"):
-        surface_of_mesh(mesh, pd)
 
 
 # ---------------------------------------------------------------------------------------------- filters
@@ -233,120 +193,3 @@ def test_visible_faces_are_the_hull_of_an_opaque_solid():
     assert (visible_faces(pts, pd, few, cams) <= few).all() and visible_faces(pts, pd, few, cams).any()
 
 
-def test_surface_closes_a_large_hole_with_the_inside_tets_boundary():
-    """A ball's boundary with a cap of walls missing (a part a scanner did not see): too large a hole for a
-    fill over its rim, so the inside tets' own boundary closes it: a closed surface that keeps the walls and
-    about the ball's volume (the walks that leave through the hole call a few tets under it outside, so the
-    lid need not be the missing cap face for face); its mesh, lid refined and faired, is watertight. Without
-    lids the hole stays open."""
-    pd = cloud_diagram(n=3000, seed=4)
-    inside = ball_labels(pd)
-    walls = solid.boundary_mask(pd, inside)
-    truth = solid.oriented_boundary(pd, inside, np.flatnonzero(walls))
-    centre = pd.points[pd.faces.astype(np.int64)].mean(1)
-    cap = walls & (centre[:, 2] > 0.35)
-    holed = walls & ~cap
-    config = SurfaceConfig(max_hole=8)
-    out = surface(pd, holed, config=config)
-    assert out.info["lids"] == 1 and out.info["lid_faces"] > 0 and out.info["holes_left"] == 0
-    assert out.lid.sum() == out.info["lid_faces"] and not out.lid[out.closed:].any()
-    mesh = check_closed(out.faces, pd.points[out.vertices])
-    kept = {cycle(out.vertices[f]) for f in out.faces[~out.lid].tolist()}
-    walls_kept = [cycle(f) in kept for f in truth.tolist() if cycle(f) not in
-                  {cycle(g) for g in solid.oriented_boundary(pd, inside, np.flatnonzero(cap)).tolist()}]
-    assert np.mean(walls_kept) > 0.95
-    ball = trimesh.Trimesh(pd.points, truth, process=False).volume
-    assert mesh.volume == pytest.approx(ball, rel=0.1)
-    bare = surface(pd, holed, config=SurfaceConfig(max_hole=8, lids=False))
-    assert bare.info["holes_left"] >= 1 and repair.boundary_edge_count(bare.faces) > 8
-
-    walls_mesh = trimesh.Trimesh(pd.points, pd.faces[holed], process=False)
-    faired = surface_of_mesh(walls_mesh, pd, config=config)
-    info = faired.metadata["surface"]
-    assert info["lids_faired"] and info["lid_vertices_added"] > 0
-    check_closed(np.asarray(faired.faces), np.asarray(faired.vertices))
-    # `fairing=-1`: the lids stay faces of the triangulation, the surface's faces as they are
-    flat = surface_of_mesh(walls_mesh, pd, config=SurfaceConfig(max_hole=8, fairing=-1))
-    assert "lids_faired" not in flat.metadata["surface"] and len(flat.faces) == len(out.faces)
-    check_closed(np.asarray(flat.faces), np.asarray(flat.vertices))
-    assert len(faired.vertices) == len(flat.vertices) + info["lid_vertices_added"]
-    with pytest.raises(ValueError, match="fairing"):
-        SurfaceConfig(fairing=3)
-
-
-
-def test_a_stretch_the_samples_missed_is_faired_between_them():
-    """Samples of a sphere with a cap left unsampled (what a scanner did not see): the Delaunay faces across the
-    cap are a flat lid of long faces, no hole. With `spans` (the default) they are refined and faired like a lid
-    over a hole: the cap rises back towards the sphere, the surface stays watertight, and no sample moves.
-    With `spans=0` the faces stay flat."""
-    n = 1500
-    k = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * k / n
-    r = np.sqrt(1.0 - z * z)
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
-    samples = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-    samples = samples[samples[:, 2] < 0.75]
-    corners = 1.5 * np.array([[x, y, w] for x in (-1, 1) for y in (-1, 1) for w in (-1, 1)], float)
-    pd = wdt.PowerDiagram.from_points(np.concatenate([samples, corners]), None)
-    inside = (pd.tets < len(samples)).all(1)  # the samples' hull
-    walls = solid.boundary_mask(pd, inside)
-    mesh = trimesh.Trimesh(pd.points, pd.faces[walls], process=False)
-    flat = surface_of_mesh(mesh, pd, config=SurfaceConfig(spans=0.0))
-    assert flat.metadata["surface"]["span_faces"] == 0 and np.asarray(flat.vertices)[:, 2].max() < 0.76
-    faired = surface_of_mesh(mesh, pd)
-    info = faired.metadata["surface"]
-    assert info["span_faces"] > 0 and info["lids_faired"] and info["lid_vertices_added"] > 0
-    v = np.asarray(faired.vertices)
-    check_closed(np.asarray(faired.faces), v)
-    assert v[:, 2].max() > 0.85  # a sphere's cap, not a plane: the top of the unit sphere is 1
-    old = v[:len(v) - info["lid_vertices_added"]]
-    assert np.abs(np.linalg.norm(old, axis=1) - 1.0).max() < 1e-9  # every sample stays on the sphere
-    with pytest.raises(ValueError, match="spans"):
-        SurfaceConfig(spans=-1.0)
-
-
-@pytest.mark.parametrize("height,dropped", [(0.7, True), (1.5, False)])
-@pytest.mark.parametrize("as_span", [False, True])
-def test_a_lid_whose_fair_form_crosses_a_sheet_is_dropped(height, dropped, as_span):
-    """A pressed sphere cap as the lid and a square sheet above it: faired, the cap rises towards the sphere.
-    Through a sheet at z = 0.7 it would cross it, so the lid is dropped (its hole open again) and the sheet
-    kept; a sheet at z = 1.5 leaves the faired lid in place. The cap as a span (faces of the surface across an
-    unsampled stretch, not a lid; its corners held): a sheet tilted through it is crossed whatever the fairing
-    does, so the span leaves the fairing and its faces stay as they were (the surface stays closed); under the
-    sheet at z = 1.5 only new vertices are added and moved."""
-    from dmesh.extract import Surface, _fair_lids
-
-    sphere = trimesh.creation.icosphere(3)
-    v, f = np.asarray(sphere.vertices, dtype=np.float64), np.asarray(sphere.faces, dtype=np.int64)
-    lid = v[f].mean(1)[:, 2] > 0.6
-    inner = np.setdiff1d(np.unique(f[lid]), np.unique(f[~lid]))
-    v[inner, 2] = 0.6
-    square = np.array([[-0.5, -0.5, height], [0.5, -0.5, height], [0.5, 0.5, height], [-0.5, 0.5, height]])
-    if as_span and dropped:  # its corners held, a span barely rises: a sheet tilted through the pressed cap
-        square[:, 2] = 0.5 + 0.3 * square[:, 0]
-    sheet = len(v) + np.array([[0, 1, 2], [0, 2, 3]])
-    vertices = np.concatenate([v, square])
-    faces = np.concatenate([f, sheet])
-    flags = np.r_[lid, False, False]
-    none = np.zeros(len(flags), bool)
-    info = {"lids": 0, "lid_faces": 0} if as_span else {"lids": 1, "lid_faces": int(lid.sum())}
-    result = Surface(faces, np.arange(len(vertices)), len(f), info, none if as_span else flags,
-                     flags if as_span else none)
-    out_v, out_f = _fair_lids(vertices, faces, result, 1)
-    assert result.info["lids_dropped"] == int(dropped)
-    assert {cycle(t) for t in sheet.tolist()} <= {cycle(t) for t in out_f.tolist()}  # the sheet stays
-    closed = out_f[~np.isin(out_f, sheet).all(1)]
-    if dropped and as_span:
-        assert np.array_equal(out_v, vertices) and np.array_equal(closed, f)
-        assert result.info["lid_faces"] == 0
-    elif as_span:
-        assert np.array_equal(out_v[:len(vertices)], vertices) and len(out_v) > len(vertices)
-        check_closed(closed, out_v)
-    elif dropped:
-        assert np.array_equal(out_v, vertices) and len(closed) == (~lid).sum()
-        assert result.info["lid_faces"] == 0 and repair.boundary_edge_count(closed) > 0
-    else:
-        assert len(out_v) > len(vertices) and result.info["lid_vertices_added"] > 0
-        check_closed(closed, out_v)
-        assert not repair.FaceIndex(out_v, out_f).crossing(out_f).any()

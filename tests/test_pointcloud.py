@@ -19,7 +19,7 @@ import trimesh
 from datasets.normalize import normalize
 from datasets.sampling import sample_points
 from datasets.synthetic import generate
-from dmesh import repair
+from dmesh.surface.topology import hole_loops
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.recon.pointcloud import PointCloudConfig, check_points, reconstruct
 from common import check_closed, check_manifold
@@ -393,11 +393,10 @@ def test_a_mixed_cloud_gives_no_branch_or_pinch_once_read_back():
 
 def test_a_scanned_torus_is_closed_over_what_the_scanner_did_not_see():
     """4 cameras leave stretches of a torus unsampled, holes too large for a fill over their rims: the surface
-    closes them with the inside tets' boundary, refined and faired (`SurfaceConfig.lids`). Against the same
+    closes them with the inside tets' boundary, refined and faired (the lids and fair stages). Against the same
     final DMesh extracted without lids, the mesh is watertight and much nearer the torus (measured: CD p2s
     1.02e-3 against 4.13e-3 with 20K metric samples; the limit is half the latter)."""
     from datasets.scan import simulate_scan
-    from dmesh.extract import SurfaceConfig, extract
     from eval.metrics import chamfer_l1_p2s
 
     gt = normalize(generate("torus"))[0]
@@ -408,9 +407,8 @@ def test_a_scanned_torus_is_closed_over_what_the_scanner_did_not_see():
     assert surface_info["lids"] >= 1 and surface_info["lids_dropped"] == 0 and surface_info["lid_vertices_added"] > 0
     check_closed(np.asarray(res.mesh.faces), np.asarray(res.mesh.vertices))
     assert _oriented_fraction(res.mesh, gt) >= 0.99
-    bare = extract(res.dmesh, cfg.threshold, None, cfg.extraction, orient=True,
-                   normals=((scan.points - res.center) * res.scale, scan.face_normals),
-                   config=SurfaceConfig(lids=False))
+    bare = res.dmesh.extract_mesh(cfg.threshold, cfg.extraction, surface=cfg.surface.with_overrides({"skip": ["lids"]}),
+                                  normals=((scan.points - res.center) * res.scale, scan.face_normals))
     bare.vertices = np.asarray(bare.vertices) / res.scale + res.center
     assert not bare.is_watertight
     with_lids, without = chamfer_l1_p2s(res.mesh, gt, n=20_000), chamfer_l1_p2s(bare, gt, n=20_000)
@@ -549,7 +547,7 @@ def test_fast_makes_a_shredded_mesh_again_from_the_smoothed_input(caplog):
     The clean sample is made once."""
     from dmesh.recon.config import FRAGMENTED_BOUNDARY, FRAGMENTED_RIM
     from dmesh.recon.init import NOISY_RATIO
-    from dmesh.repair import boundary_edge_count
+    from dmesh.surface.topology import boundary_edge_count
 
     gt, pts, nrm = _shape_cloud("torus", 20_000)
     noisy = pts + np.random.default_rng(2).normal(scale=0.003, size=pts.shape)
@@ -586,7 +584,7 @@ def test_fast_makes_a_shredded_sheet_again_though_its_clean_up_hides_the_shreds(
     the `noisy` preset's mesh, much closer to the sheet."""
     from datasets.corrupt import add_noise
     from dmesh.recon.config import FRAGMENTED_BOUNDARY, FRAGMENTED_RIM
-    from dmesh.repair import boundary_edge_count
+    from dmesh.surface.topology import boundary_edge_count
     from eval.metrics import chamfer_l1_p2s
 
     gt = normalize(generate("wavy_sheet"))[0]
@@ -607,15 +605,14 @@ def test_fast_makes_a_shredded_sheet_again_though_its_clean_up_hides_the_shreds(
     assert cd_redone < 0.5 * cd_once, (cd_once, cd_redone)
 
 
-def test_a_coarse_sheet_keeps_the_holes_of_its_shape(monkeypatch):
+def test_a_coarse_sheet_keeps_the_holes_of_its_shape():
     """The wavy sheet has three round holes. At 2500 seeds a coarse mesh rims one of them with 12 long edges,
-    few enough for the sheet-hole fill (`SurfaceConfig.max_sheet_hole`), but the input has no sample near its
-    centre: the fill is left out (`hole_gap`) and the hole stays (the third hole is covered over at this
+    few enough for the sheet-hole fill (`sheet_holes.max_edges`), but the input has no sample near its
+    centre: the fill is left out (`sheet_holes.gap`) and the hole stays (the third hole is covered over at this
     resolution: the mesh has the rim and two holes). Without
     that test the hole is filled, a flat patch across it, and CD p2s rises by far more than the sampling
     noise."""
-    import dmesh.recon.pointcloud as pcm
-    from dmesh.extract import SurfaceConfig
+    from dmesh.surface import SurfaceConfig
     from eval.metrics import chamfer_l1_p2s
 
     gt = normalize(generate("wavy_sheet"))[0]
@@ -624,16 +621,16 @@ def test_a_coarse_sheet_keeps_the_holes_of_its_shape(monkeypatch):
     res = reconstruct(pts, nrm, cfg)
     info = res.info["surface"]
     assert info["sheet_holes_unsampled"] >= 1 and info["sheet_holes_filled"] == 0
-    kept = len(repair.hole_loops(np.asarray(res.mesh.faces)))
-    assert kept >= 3 and len(repair.hole_loops(np.asarray(gt.faces))) == 4   # the rim and 2 of the 3 holes
-    monkeypatch.setattr(pcm, "SurfaceConfig", lambda **k: SurfaceConfig(hole_gap=0.0, **k))
-    filled = reconstruct(pts, nrm, cfg)
+    kept = len(hole_loops(np.asarray(res.mesh.faces)))
+    assert kept >= 3 and len(hole_loops(np.asarray(gt.faces))) == 4   # the rim and 2 of the 3 holes
+    filled = reconstruct(pts, nrm, PointCloudConfig.from_preset("fast", {"num_init": 2500,
+                                                                       "surface.sheet_holes.gap": 0}))
     assert filled.info["surface"]["sheet_holes_filled"] >= 1
-    assert len(repair.hole_loops(np.asarray(filled.mesh.faces))) < kept
+    assert len(hole_loops(np.asarray(filled.mesh.faces))) < kept
     cd, cd_filled = (chamfer_l1_p2s(m, gt, n=20_000) for m in (res.mesh, filled.mesh))
     assert cd < 0.75 * cd_filled, (cd, cd_filled)
-    with pytest.raises(ValueError, match="hole_gap"):
-        SurfaceConfig(hole_gap=-1.0)
+    with pytest.raises(ValueError, match="sheet_holes.gap"):
+        SurfaceConfig(sheet_holes={"gap": -1.0})
 
 
 def test_fast_does_not_take_a_small_intact_mesh_with_much_rim_for_shreds():
@@ -698,12 +695,11 @@ def test_the_monitor_curve_is_in_the_frame_of_the_filtered_input():
 
 def test_a_noisy_sheet_comes_out_nearly_in_one_piece_without_its_small_holes():
     """Noise of 1 % of the radius leaves a sheet's extraction strewn with pieces of a triangle or two lying in
-    its band, and riddled with small holes. The surface drops those pieces (`SurfaceConfig.stacked`) and fills
-    the holes of at most `max_sheet_hole` edges: against the same final DMesh extracted without either, a
+    its band, and riddled with small holes. The surface drops those pieces (the stacked stage) and fills
+    the holes of at most `sheet_holes.max_edges` edges: against the same final DMesh extracted without either, a
     tenth of the pieces or fewer, far fewer boundary edges, and no farther from the sheet (measured: 4 against
     93 pieces, 754 against 3087 boundary edges, CD p2s 2.84e-3 against 2.96e-3 with 20K metric samples)."""
     from datasets.corrupt import add_noise
-    from dmesh.extract import SurfaceConfig, extract
     from eval.metrics import chamfer_l1_p2s, mesh_stats
 
     gt = normalize(generate("wavy_sheet"))[0]
@@ -711,9 +707,9 @@ def test_a_noisy_sheet_comes_out_nearly_in_one_piece_without_its_small_holes():
     pts = add_noise(pts, 0.01, seed=0)
     cfg = PointCloudConfig.fast()
     res = reconstruct(pts, nrm, cfg)
-    bare = extract(res.dmesh, cfg.threshold, None, cfg.extraction, orient=True,
-                   normals=((pts - res.center) * res.scale, nrm),
-                   config=SurfaceConfig(stacked=0.0, max_sheet_hole=0))
+    bare = res.dmesh.extract_mesh(cfg.threshold, cfg.extraction,
+                                  surface=cfg.surface.with_overrides({"skip": ["stacked", "sheet_holes"]}),
+                                  normals=((pts - res.center) * res.scale, nrm))
     bare.vertices = np.asarray(bare.vertices) / res.scale + res.center
     info = res.info["surface"]
     assert info["stacked_dropped"] > 0 and info["sheet_holes_filled"] > 0

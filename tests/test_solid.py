@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from dmesh import repair, solid
+from dmesh import solid
+from dmesh.surface import topology
 from common import ball_labels, check_closed, cloud_diagram, cycle
 
 
@@ -54,7 +55,7 @@ def test_pinched_tets_are_separated(shared):
     inside = np.zeros(len(tets), bool)
     inside[[a, b]] = True
     faces = pd.faces[solid.boundary_mask(pd, inside)].astype(np.int64)
-    assert len(repair.nonmanifold_vertices(faces)) > 0
+    assert len(topology.nonmanifold_vertices(faces)) > 0
     fixed, flipped = solid.repair_pinches(pd, inside)
     assert flipped > 0
     check_closed(solid.oriented_boundary(pd, fixed, np.flatnonzero(solid.boundary_mask(pd, fixed))), pd.points)
@@ -72,7 +73,7 @@ def test_large_lids_are_the_pieces_whose_rim_is_longer_than_a_fillable_hole():
     lid = cap.copy()
     lid[one] = True
     walls, lids = faces[~lid], faces[lid]
-    cap_rim = repair.boundary_edge_count(faces[cap])
+    cap_rim = topology.boundary_edge_count(faces[cap])
     assert cap_rim > 3 and len(one) == 1
     keep = solid.large_lids(walls, lids, min_rim=3)
     assert np.array_equal(keep, cap[lid])  # the cap (rim > 3) but not the single face (rim 3)

@@ -6,12 +6,19 @@ config (unknown keys raise ValueError naming the known ones).
 - `PointCloudConfig` (`dmesh.recon.pointcloud.reconstruct`): presets `POINTCLOUD_PRESETS`.
 - `MultiViewConfig` (`dmesh.recon.multiview.reconstruct`): presets `MULTIVIEW_PRESETS`, in
   `dmesh.recon.multiview_config` (its own module, so a multi-view setting changes no point-cloud run's key).
+
+Both hold the surface step's settings in their field `surface` (a `dmesh.surface.SurfaceConfig`); an override
+key `surface.SECTION.FIELD` (or a `surface` mapping of them) sets one of its fields, e.g. `--set
+surface.lids.max_hole=100`. The run's seed (and point-cloud workers) are the surface step's too.
 """
 from __future__ import annotations
 
+import dataclasses
 import numbers
-from dataclasses import dataclass, fields
-from typing import ClassVar, Mapping
+from dataclasses import dataclass, field, fields
+from typing import Callable, ClassVar, Mapping
+
+from dmesh.surface.config import SurfaceConfig
 
 #: Implementations of the step's kernels (the expected Chamfer and the Delta recomputation).
 KERNELS = ("native", "reference")
@@ -69,10 +76,23 @@ class Presets:
         """
         overrides = dict(overrides or {})
         known = {f.name for f in fields(cls)}
+        dotted = {k: overrides.pop(k) for k in list(overrides) if str(k).startswith("surface.")}
         unknown = sorted(set(overrides) - known)
         if unknown:
-            raise ValueError(f"{owner + ': ' if owner else ''}unknown config keys {unknown}; known: {sorted(known)}")
-        return cls.preset(str(preset or DEFAULT_PRESET), **overrides)
+            raise ValueError(f"{owner + ': ' if owner else ''}unknown config keys {unknown}; known: {sorted(known)} "
+                             f"(and surface.SECTION.FIELD)")
+        cfg = cls.preset(str(preset or DEFAULT_PRESET), **overrides)
+        if not dotted:
+            return cfg
+        settings = {k.split(".", 1)[1]: v for k, v in dotted.items()}
+        clash = sorted(set(settings) & {"seed", "workers"})
+        if clash:
+            raise ValueError(f"{owner + ': ' if owner else ''}surface.{clash[0]}: the surface step takes the run's "
+                             f"{clash[0]}; set {clash[0]} instead")
+        try:
+            return dataclasses.replace(cfg, surface=cfg.surface.with_overrides(settings))
+        except ValueError as exc:
+            raise ValueError(f"{owner + ': ' if owner else ''}{exc}") from None
 
     @classmethod
     def preset(cls, name: str, **overrides):
@@ -80,6 +100,23 @@ class Presets:
         if name not in cls.PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose from {', '.join(cls.PRESETS)}")
         return getattr(cls, name)(**overrides)
+
+    def run_surface(self, default: Callable[[], SurfaceConfig], workers: int | None = None) -> None:
+        """`__post_init__`'s part for the `surface` field: a mapping of overrides (as `SurfaceConfig.with_overrides`
+        takes) applies to `default()`; the run's seed, and `workers` when given, replace the surface step's."""
+        surface, name = self.surface, type(self).__name__
+        if isinstance(surface, Mapping):
+            given = {k: surface[k] for k in ("seed", "workers") if k in surface}
+            run = {"seed": self.seed, "workers": workers}
+            if any(run[k] is not None and v != run[k] for k, v in given.items()):
+                raise ValueError(f"{name}.surface: the surface step takes the run's seed and workers; set those "
+                                 f"instead of {sorted(given)}")
+            surface = default().with_overrides(surface)
+        elif not isinstance(surface, SurfaceConfig):
+            raise TypeError(f"{name}.surface must be a SurfaceConfig or a mapping of its settings, got "
+                            f"{type(surface).__name__}")
+        run = {"seed": int(self.seed)} if workers is None else {"seed": int(self.seed), "workers": int(workers)}
+        object.__setattr__(self, "surface", dataclasses.replace(surface, **run))
 
     def probability_config(self):
         """The `dmesh.probability.ProbabilityConfig` of these settings."""
@@ -153,7 +190,8 @@ class PointCloudConfig(Presets):
     active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
     threshold: float = 0.5          # real value above which a point is on the final mesh
     extraction: str = "sheet"       # which real faces make the mesh: "all", "no_interior", "sheet" (dmesh.extract)
-    orient: bool = True             # output the faces' oriented, closed surface (dmesh.extract.surface)
+    orient: bool = True             # output the faces' oriented, closed surface (the surface step, dmesh.surface)
+    surface: SurfaceConfig = field(default_factory=SurfaceConfig)  # its settings (seed, workers: the run's)
     save_every: int = 50            # steps between resumable state saves (with a state path)
     workers: int = 2                # threads of the k-d tree queries (at most torch.get_num_threads())
     kernels: str = "native"         # "native" (C++ expected Chamfer and Delta) or "reference" (torch, for checks)
@@ -199,6 +237,7 @@ class PointCloudConfig(Presets):
         object.__setattr__(self, "train_phase1", train)
         object.__setattr__(self, "freeze_phase2",
                            as_tuple(self.freeze_phase2, int, f"{type(self).__name__}.freeze_phase2"))
+        self.run_surface(SurfaceConfig, self.workers)
 
     @classmethod
     def paper(cls, **overrides) -> "PointCloudConfig":

@@ -25,8 +25,8 @@ The fit (a Gauss-Newton step of the squared depth residual on the mesh):
 
 Topology and winding are unchanged. Vertices no sample constrains stay where they are (the damping holds
 them). Copies of one point (`groups`: the surface step splits a vertex where sheets meet into one copy per
-sheet, 5 % of an edge apart, `dmesh.repair.separate_copies`) share one offset along one axis, that of the
-mesh with the copies joined: fitted one by one, each moved along its own sheet's normal, up to `max_offset`,
+sheet, 5 % of an edge apart, `dmesh.surface.finish.separate_copies`) share one offset along one axis, that of
+the mesh with the copies joined: fitted one by one, each moved along its own sheet's normal, up to `max_offset`,
 far more than the copies' separation, and the sheets that met there crossed each other
 (`python -m studies depth_fit_copies`). Written here because no mesh library offers a least-squares fit
 of a mesh to depth maps.
@@ -190,7 +190,7 @@ def fit_to_depth(vertices, faces, world_to_camera, fov_y_degrees: float, depth, 
 def undo_crossings(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, axes: np.ndarray,
                    groups: np.ndarray) -> int:
     """Halves, in place, the offsets `x` (one per group, along `axes`) of the vertices of every face that
-    crosses another after the fit but not before (`dmesh.repair.FaceIndex`, pairs as MeshLab counts them),
+    crosses another after the fit but not before (`dmesh.surface.crossings.FaceIndex`, pairs as MeshLab counts them),
     round after round until the fit has made no crossing; returns how many vertices were held back.
 
     Why: a copy group moves rigidly, but the other vertices of the tiny pieces that meet at it do not, so a
@@ -199,7 +199,7 @@ def undo_crossings(vertices: np.ndarray, faces: np.ndarray, x: np.ndarray, axes:
     offset below 1e-3 of the largest becomes 0. Each round
     shrinks a moved vertex of every new crossing pair (a pair that did not cross with no vertex moved has
     one), so the loop ends, at worst at the unfitted mesh."""
-    from dmesh.repair import FaceIndex
+    from dmesh.surface.crossings import FaceIndex
 
     before = FaceIndex(vertices, faces).crossing(faces)
     held = np.zeros(0, np.int64)

@@ -329,16 +329,17 @@ def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iters: int = 20) ->
 
 def _orient(points: np.ndarray, weights: np.ndarray, faces: np.ndarray, gt_vertices: np.ndarray,
             gt_faces: np.ndarray) -> np.ndarray:
-    """The (K', 3) output faces: `faces` wound by `dmesh.extract.surface` on the state's WDT, closed parts
-    outward (tets inside / outside), the rest like the input mesh (the normals of its faces, at their
-    centroids, stand in for input normals).
+    """The (K', 3) output faces: `faces` wound by the surface step (`dmesh.surface.run`, orientation only) on the
+    state's WDT, closed parts outward (tets inside / outside), the rest like the input mesh (the normals of its
+    faces, at their centroids, stand in for input normals).
 
     When the input mesh has no non-manifold edge, neither has the output: a false face that shares an edge
     with the closed part (a fin) is dropped, and on an edge that still has more than two faces only the two
-    that continue each other best stay (`dmesh.repair.keep_flattest`). An input that is itself non-manifold
-    (some scans) keeps every face, so its extra sheets are not cut away."""
-    from dmesh import repair
-    from dmesh.extract import SurfaceConfig, surface
+    that continue each other best stay (`dmesh.surface.finish.keep_flattest`). An input that is itself
+    non-manifold (some scans) keeps every face, so its extra sheets are not cut away."""
+    from dmesh.surface import SurfaceConfig, run
+    from dmesh.surface.finish import keep_flattest
+    from dmesh.surface.topology import faces_on_edges, nonmanifold_edges
 
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
@@ -350,13 +351,13 @@ def _orient(points: np.ndarray, weights: np.ndarray, faces: np.ndarray, gt_verti
     tri = gt_vertices[gt_faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), FLOAT64_FLOOR)
-    s = surface(pd, walls, (tri.mean(1), normal), SurfaceConfig(clean=False))
+    s = run(pd, walls, (tri.mean(1), normal), None, SurfaceConfig(clean=False))
     wound = np.concatenate([s.faces, faces[ids < 0]])  # (a face not in this WDT, which should not happen, stays)
-    if len(repair.nonmanifold_edges(gt_faces)):
+    if len(nonmanifold_edges(gt_faces)):
         return wound
     closed, rest = wound[:s.closed], wound[s.closed:]
-    wound = np.concatenate([closed, rest[~repair.faces_on_edges(rest, closed)]])
-    return wound[repair.keep_flattest(points, wound)]
+    wound = np.concatenate([closed, rest[~faces_on_edges(rest, closed)]])
+    return wound[keep_flattest(points, wound)]
 
 
 @deterministic

@@ -40,10 +40,10 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    "both" applies both; "sheet" is the point-cloud extraction's one-sheet rule, `dmesh.extract`; "none"
    neither), and with `depth_tolerance` minus the faces whose centroid is not within it of the captured
    depth in any view (`dmesh.extract.depth_consistent_faces`: interior faces seen through cracks and
-   floaters; not upstream), made an oriented, closed surface (`dmesh.extract.surface`; open sheets face the cameras that
-   saw them), mapped back to the input frame. The same extraction (visibility at
-   the optimised resolution) gives the mesh each re-seed samples; the last epoch's is extracted once, at
-   the capture's resolution, unless `select_best` may pick another. With
+   floaters; not upstream), made an oriented, closed surface (the surface step, `dmesh.surface`, with the
+   settings `surface`; open sheets face the cameras that saw them), mapped back to the input frame. The same
+   extraction (visibility at the optimised resolution) gives the mesh each re-seed samples; the last epoch's is
+   extracted once, at the capture's resolution, unless `select_best` may pick another. With
    `select_best`, each epoch's mesh is rendered opaque from every view and the epoch with the lowest image
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
 6. With `depth_fit` (not upstream): the mesh's vertices move along their normals by one least-squares fit
@@ -69,8 +69,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from dmesh.extract import (SurfaceConfig, depth_consistent_faces, extract_filtered, filtered_faces, surface_of_mesh,
-                           to_trimesh, towards_cameras)
+from dmesh.extract import depth_consistent_faces, filtered_faces, to_trimesh, towards_cameras
 from dmesh.geometry import gather
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.model import DMesh
@@ -85,6 +84,7 @@ from dmesh.recon.views import (BOX_MARGIN, Views, check_views, depth_channel, im
                                normalisation, smooth_from_pool)
 from dmesh.render import Camera, soft_render_views, tet_render_views
 from dmesh.sampling import sample_surface
+from dmesh.surface import surface_mesh
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +209,7 @@ class _Run:
                                               "best": self.best, "probability": self.dm.state})
         self.clock = self.loop.clock
         self.best = None   # the epoch whose mesh renders closest to the images ("select_best")
-        self.final = None  # the last epoch's (mesh, removed) when it is the output
+        self.final = None  # the last epoch's (mesh, faces kept, removed) when it is the output
         self.pd = None     # the current triangulation
         self.loop.stage("init")
         with self.clock("init"):
@@ -385,7 +385,7 @@ class _Run:
                                                    self.full if last else self.cameras, cfg.select_best,
                                                    self.consistent)
             mesh = to_trimesh(dm.points.detach().double().numpy(), pd.faces[keep])
-            self.final = (mesh, removed) if last else None
+            self.final = (mesh, keep, removed) if last else None
             record = {"epoch": epoch, "points": len(dm), "faces": int(len(mesh.faces)), "interior_removed": removed}
             if images is not None and not last:  # (the last epoch's images are at the capture's resolution)
                 record["eval_loss"] = self.eval_loss(images)
@@ -416,22 +416,20 @@ class _Run:
             if best is not None:
                 info["selected_epoch"] = best["epoch"]
             if self.final is not None:
-                mesh, removed = self.final
+                mesh, keep, removed = self.final
             else:
                 self.pd = self.pd if self.pd is not None else self.dm.power_diagram()
-                mesh, removed = extract_filtered(self.dm, cfg.threshold, self.pd, cfg.interior, self.full,
-                                                 self.consistent)
+                keep, removed, _ = filtered_faces(self.dm, cfg.threshold, self.pd, cfg.interior, self.full,
+                                                  consistent=self.consistent)
+                mesh = to_trimesh(self.dm.points.detach().double().numpy(), self.pd.faces[keep])
         groups = None  # the points of the triangulation the vertices are copies of (None: each its own)
-        if cfg.orient:  # the faces' closed, outward surface (dmesh.extract.surface); sheets face their cameras
+        if cfg.orient:  # the faces' closed, outward surface (dmesh.surface); sheets face their cameras
             with self.clock("orient"):
                 points = np.asarray(mesh.vertices, dtype=np.float64)
                 seen = np.repeat(np.arange(len(vw.mask)), vw.mask.reshape(len(vw.mask), -1).sum(1))
                 towards = towards_cameras((lifted_points(vw) - self.center) * self.scale, self.eyes[seen])
-                # Directions towards the cameras are not normals: on a sheet seen from both sides they point
-                # to either side patch by patch, so sheets turn whole (dmesh.repair.orient_sheets). Long faces
-                # stay as they are (`SurfaceConfig.spans`: chosen and measured on point clouds only).
-                config = SurfaceConfig(seed=cfg.seed, turn_faces=False, spans=0.0)
-                mesh = surface_of_mesh(mesh, self.pd, towards, config)
+                # (directions towards the cameras are not normals: `multiview_config.multiview_surface`)
+                mesh = surface_mesh(self.pd, keep, towards, None, cfg.surface)
                 info["surface"] = mesh.metadata.pop("surface")
                 if len(points) and cfg.depth_fit:
                     groups = copy_groups(mesh.vertices, points)
@@ -451,7 +449,7 @@ def copy_groups(vertices, points) -> np.ndarray:
     """(V,) int: for each vertex of the surface step's mesh, the index of the extracted point it is a copy of.
 
     The surface step gives a point where sheets meet one copy per sheet, each moved a few percent of an edge
-    into its own faces (`dmesh.repair.separate_copies`); every other vertex is one of `points` itself. So the
+    into its own faces (`dmesh.surface.finish.separate_copies`); every other vertex is one of `points` itself. So the
     nearest of `points` is the vertex's source. `fit_to_depth` moves a group's copies together."""
     from scipy.spatial import cKDTree
 

@@ -6,16 +6,24 @@ and the point-cloud settings), and apart from it so that a multi-view setting ch
 from __future__ import annotations
 
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 from dmesh.recon.config import KERNELS, MULTIVIEW_PRESETS, POINTCLOUD_PRESETS, Presets, as_tuple
+from dmesh.surface.config import SurfaceConfig
 
 INTERIOR_MODES = ("apex", "visible", "both", "sheet", "none")
 INIT_MODES = ("grid", "depth")
 #: The `refine` preset's phase-1 and phase-2 steps and its learning rate (= per-step bound).
 REFINE_STEPS = (10, 5)
 REFINE_LR = 1e-5
+
+
+def multiview_surface() -> SurfaceConfig:
+    """The surface step's settings from images: directions towards the cameras are not normals (on a sheet seen
+    from both sides they point to either side patch by patch), so sheets turn whole; long faces stay as they are
+    (spans are chosen and measured on point clouds only)."""
+    return SurfaceConfig().with_overrides({"wind_sheets.turn_faces": False, "spans.ratio": 0.0})
 
 
 def _tuple(value, n: int, name: str) -> tuple:
@@ -86,7 +94,8 @@ class MultiViewConfig(Presets):
     depth_tolerance: float | None = None  # keep only faces within this of the captured depth in some view
     depth_fit: bool = False          # last, the mesh's vertices fitted to the depth maps (not upstream;
                                      # dmesh.recon.depth_fit)
-    orient: bool = True              # output the faces' oriented, closed surface (dmesh.extract.surface)
+    orient: bool = True              # output the faces' oriented, closed surface (the surface step, dmesh.surface)
+    surface: SurfaceConfig = field(default_factory=multiview_surface)  # its settings (seed: the run's)
     save_every: int = 50             # steps between resumable state saves (with a state path)
     kernels: str = "native"          # Delta recomputation: "native" (C++) or "reference" (torch, for checks)
     seed: int = 0                    # seed of every random choice
@@ -148,6 +157,7 @@ class MultiViewConfig(Presets):
             raise ValueError(f"MultiViewConfig.threshold must be in [0, 1), got {self.threshold}")
         if self.kernels not in KERNELS:
             raise ValueError(f"MultiViewConfig.kernels must be one of {', '.join(KERNELS)}, got {self.kernels!r}")
+        self.run_surface(multiview_surface)
 
     @property
     def epochs(self) -> int:

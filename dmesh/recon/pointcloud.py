@@ -28,14 +28,15 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `2_pc_recon.py`):
    Once the mesh has not changed for `phase2_patience` steps (not upstream), the phase ends there;
    info["phase2_settled_at"] is that step.
 4. The mesh: faces of the final WDT whose three real values exceed `threshold` (`extraction`); with
-   `orient`, their closed, outward surface (`dmesh.extract.surface`: tets inside / outside, small holes
-   filled, fins dropped, open sheets facing the input normals when given); mapped back to the input frame.
+   `orient`, their closed, outward surface (the surface step, `dmesh.surface`, with the settings `surface`: tets
+   inside / outside, small holes filled, fins dropped, open sheets facing the input normals when given); mapped
+   back to the input frame.
 5. With `redo_fragmented` > 0 and `auto_smooth_k` > 0 (not upstream; the `fast` preset): a run that did not
-   smooth its input and whose mesh (its surface before the sheets' clean-up: `_rim`) has more than
-   `redo_fragmented` boundary edges per face and more than `FRAGMENTED_RIM` times the square root of its face
-   count (noise that `noise_ratio` missed: the mesh is in shreds; a small intact mesh has many boundary edges
-   per face but few per root face) is done again with the input smoothed (`auto_smooth_k` neighbours,
-   `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
+   smooth its input and whose mesh (its surface before the sheets' clean-up: the surface step's rim stage,
+   `_rim`) has more than `redo_fragmented` boundary edges per face and more than `FRAGMENTED_RIM` times the
+   square root of its face count (noise that `noise_ratio` missed: the mesh is in shreds; a small intact mesh has
+   many boundary edges per face but few per root face) is done again with the input smoothed (`auto_smooth_k`
+   neighbours, `smoothed_seeds`); info["fragmented_attempt"] holds the first attempt's figures, and the
    timings' "total" includes it.
 
 The steps run in `dmesh.recon.loop.Loop.run_phase` (backward, update, history, callback, checkpoints);
@@ -56,7 +57,7 @@ import numpy as np
 import torch
 
 from dmesh.checks import check_coordinates, check_not_a_line
-from dmesh.extract import SurfaceConfig, extract, orient_faces  # extract, orient_faces: re-exported
+from dmesh.extract import extract  # re-exported: the raw-faces mesh of a DMesh
 from dmesh.geometry import gather
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
@@ -67,7 +68,7 @@ from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_a
 from dmesh.recon.loop import (Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
-from dmesh.repair import boundary_edge_count
+from dmesh.surface.topology import boundary_edge_count
 from dmesh.tolerances import DIVISION_FLOOR
 
 log = logging.getLogger(__name__)
@@ -291,11 +292,11 @@ class _Run:
         cfg, pd = self.cfg, self.pd
         self.loop.stage("extract")
         with self.clock("extract"):
-            # With `orient`: the faces' closed, outward surface (dmesh.extract.surface); input normals, when
-            # given, vote inside/outside and turn the open sheets.
-            mesh = extract(self.dm, cfg.threshold, pd, cfg.extraction, orient=cfg.orient,
-                           normals=None if self.nrm_in is None else (self.pts, self.nrm_in),
-                           config=SurfaceConfig(seed=cfg.seed, workers=cfg.workers), samples=self.pts)
+            # With `orient`: the faces' closed, outward surface (dmesh.surface); input normals, when given, vote
+            # inside/outside and turn the open sheets.
+            mesh = self.dm.extract_mesh(cfg.threshold, cfg.extraction, surface=cfg.surface if cfg.orient else None,
+                                        pd=pd, normals=None if self.nrm_in is None else (self.pts, self.nrm_in),
+                                        samples=self.pts)
         if "surface" in mesh.metadata:
             info["surface"] = mesh.metadata.pop("surface")
         mesh.vertices = np.asarray(mesh.vertices) / self.scale + self.center
@@ -385,5 +386,4 @@ def _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe) -> Point
     return run.extract(info)
 
 
-__all__ = ["PointCloudConfig", "PointCloudResult", "PRESETS", "reconstruct", "check_points", "extract",
-           "orient_faces"]
+__all__ = ["PointCloudConfig", "PointCloudResult", "PRESETS", "reconstruct", "check_points", "extract"]

@@ -1,11 +1,11 @@
-"""Output quality of DMesh meshes before and after the tet-based surface (`dmesh.extract.surface`).
+"""Output quality of DMesh meshes before and after the tet-based surface step (`dmesh.surface`).
 
 Cases (issue [quality]), one DMesh run each, whose final state is extracted twice (multi-view: two runs of
 the same seed, one without the orientation step):
 - "before": the extracted faces as they were output until now, wound per connected component
-  (`dmesh.extract.orient_faces`; mesh to DMesh: the WDT's sorted triples, not wound at all);
-- "after": the library's output now (`extract(..., orient=True)`, `surface_of_mesh`, mesh_to_dmesh's
-  `_orient`).
+  (`dmesh.surface.orient_faces`; mesh to DMesh: the WDT's sorted triples, not wound at all);
+- "after": the library's output now (`DMesh.extract_mesh(..., surface=...)`, the multi-view run's own surface
+  step, mesh_to_dmesh's `_orient`).
 
 Inputs: point cloud, `fast` preset, 100K samples with their normals, on torus, genus2, spot, bowl, plant,
 flag_box and suzanne (seed 0), and spot with seeds 1-4; multi-view, `depth` preset on the harness capture
@@ -48,26 +48,26 @@ def _gt(name: str):
 
 def figures(mesh, gt) -> dict:
     from datasets.meshes import merge_vertices
-    from dmesh import repair
+    from dmesh.surface.topology import edge_table, nonmanifold_vertices
     from eval.metrics import chamfer_l1_p2s, oriented_fractions, topology
 
     # Topology as a file of the mesh reads back: vertices on one position merged (as `compute_metrics`).
     v, f = merge_vertices(mesh.vertices, mesh.faces) if len(mesh.faces) else (mesh.vertices, np.zeros((0, 3), int))
-    counts = repair.edge_table(f)[2]
+    counts = edge_table(f)[2]
     orient = oriented_fractions(mesh, gt)
     return {"faces": int(len(f)), "oriented": orient["oriented_fraction"],
             "any_side": orient["oriented_fraction_any_side"],
             "watertight": bool(len(f) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "nonmanifold_edges": int((counts > 2).sum()),
-            "nonmanifold_vertices": int(len(repair.nonmanifold_vertices(f))),
+            "nonmanifold_vertices": int(len(nonmanifold_vertices(f))),
             "inconsistent_winding_edges": int(topology(v, f)["inconsistent_winding_edges"]),
             "cd_p2s_1e3": 1e3 * chamfer_l1_p2s(mesh, gt)}
 
 
 def _pointcloud(name: str, seed: int) -> list[dict]:
     from datasets.sampling import sample_points
-    from dmesh.extract import SurfaceConfig, extract, orient_faces
     from dmesh.recon.pointcloud import PointCloudConfig, reconstruct
+    from dmesh.surface import orient_faces
 
     gt = _gt(name)
     pts, nrm = sample_points(gt, SAMPLES, seed)
@@ -76,9 +76,9 @@ def _pointcloud(name: str, seed: int) -> list[dict]:
     before = res.mesh.copy()
     orient_faces(before)
     t0 = time.perf_counter()
-    after = extract(res.dmesh, cfg.threshold, None, cfg.extraction, orient=True,
-                    normals=((np.asarray(pts, np.float64) - res.center) * res.scale, np.asarray(nrm, np.float64)),
-                    config=SurfaceConfig(seed=seed, workers=cfg.workers))
+    after = res.dmesh.extract_mesh(cfg.threshold, cfg.extraction, surface=cfg.surface,
+                                   normals=((np.asarray(pts, np.float64) - res.center) * res.scale,
+                                            np.asarray(nrm, np.float64)))
     seconds = time.perf_counter() - t0
     after.vertices = np.asarray(after.vertices) / res.scale + res.center
     case = {"input": "pointcloud", "shape": name, "seed": seed}
@@ -88,8 +88,8 @@ def _pointcloud(name: str, seed: int) -> list[dict]:
 
 def _multiview(name: str) -> list[dict]:
     from datasets import capture
-    from dmesh.extract import orient_faces
     from dmesh.recon import multiview as mv
+    from dmesh.surface import orient_faces
 
     gt = _gt(name)
     views = capture.capture(gt, views=64, resolution=256)
