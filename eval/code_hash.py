@@ -18,7 +18,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: Modules every run depends on besides its method: the GT and input generation and the metrics.
+#: Modules every run depends on besides its method: the GT and input generation (in every run's key; the metric
+#: code is versioned apart, `METRIC_MODULES`).
 INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.sampling",
                  "datasets.capture", "datasets.corrupt", "datasets.scan")
 #: The metrics of a run. Not in its key: a stored mesh is scored again under new metric code without
