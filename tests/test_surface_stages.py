@@ -28,6 +28,7 @@ DEFAULTS = {
     "lids": {"max_hole": 64},
     "fills": {"max_hole": 64, "retries": 3},
     "spans": {"ratio": 6.0},
+    "reopen": {"neighbours": 8, "ratio": 2.0, "share": 0.5},
     "crumbs": {"max_faces": 4, "max_debris": 1e-3, "floating": 4.0, "beside": 0.05, "floating_max_faces": 64,
                "plane_neighbours": 16},
     "stacked": {"within": 1.0, "max_faces": 64, "neighbours": 16, "over": 0.1, "spacings": 3.0,
@@ -38,7 +39,7 @@ DEFAULTS = {
     "closed_crumbs": {"max_faces": 4},
     "copies": {"separation": 0.05},
     "fair": {"continuity": 1, "density": 4.0, "untangle_rounds": 5},
-    "seed": 0, "workers": 1, "clean": True, "skip": [],
+    "seed": 0, "workers": 1, "clean": True, "skip": [], "mode": "auto",
 }
 
 

@@ -12,19 +12,21 @@ The stages, in the order they run (`STAGES`; each has its section of `SurfaceCon
 5. lids: large holes of the closed part are closed by the inside tets' boundary across them.
 6. fills: small holes of the closed part get a least-area fill that crosses nothing.
 7. spans: closed-part faces far longer than the median edge are marked to be faired like lids.
-8. fins: sheet faces sharing an edge with the closed part are dropped.
-9. crumbs: stray sheet pieces (all tiny, floating apart, or a few faces beside a closed part) are dropped.
-10. rim: the rim edges of the surface so far are counted (the point-cloud `fast` preset's shred test).
-11. stacked: small sheet pieces lying on a larger surface (stray copies) are dropped.
-12. wind_sheets: each sheet is wound consistently and turned to its input normals.
-13. sheet_holes: small inner holes of the sheets are filled where the input sampled across them.
-14. split_fans: each vertex where sheets meet gets one copy per fan of faces.
-15. folds: on an edge that still has more than two faces, the two largest stay.
-16. closed_crumbs: tiny closed pieces beside a larger one are dropped.
-17. copies: the copies of a split vertex move apart into their own faces.
-18. fair: the lids and spans are refined and faired; a lid piece that then crosses a face is dropped.
+8. reopen: lids, fills and spans over holes the input shows (no sample across them) are taken out again, so
+   the shape's own boundary stays open (`SurfaceConfig.mode`: "auto"; "open" takes out all, "closed" none).
+9. fins: sheet faces sharing an edge with the closed part are dropped.
+10. crumbs: stray sheet pieces (all tiny, floating apart, or a few faces beside a closed part) are dropped.
+11. rim: the rim edges of the surface so far are counted (the point-cloud `fast` preset's shred test).
+12. stacked: small sheet pieces lying on a larger surface (stray copies) are dropped.
+13. wind_sheets: each sheet is wound consistently and turned to its input normals.
+14. sheet_holes: small inner holes of the sheets are filled where the input sampled across them.
+15. split_fans: each vertex where sheets meet gets one copy per fan of faces.
+16. folds: on an edge that still has more than two faces, the two largest stay.
+17. closed_crumbs: tiny closed pieces beside a larger one are dropped.
+18. copies: the copies of a split vertex move apart into their own faces.
+19. fair: the lids and spans are refined and faired; a lid piece that then crosses a face is dropped.
 
-With `SurfaceConfig.clean` False only the orientation runs (stages 1-4 and 12); `SurfaceConfig.skip` leaves out
+With `SurfaceConfig.clean` False only the orientation runs (stages 1-4 and 13); `SurfaceConfig.skip` leaves out
 stages that are not required.
 
 Entry points: `run` (a `Surface`: faces, vertices and counts) and `surface_mesh` (the same as a trimesh) of the mesh
@@ -40,7 +42,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from dmesh.surface import debris, finish, holes, label, winding
+from dmesh.surface import debris, evidence, finish, holes, label, winding
 from dmesh.surface.config import SECTIONS, SurfaceConfig
 from dmesh.surface.state import Surface, SurfaceState
 from dmesh.surface.winding import orient_faces, orient_sheets
@@ -71,6 +73,7 @@ STAGES = (
     _stage(holes.lids),
     _stage(holes.fills),
     _stage(debris.spans),
+    _stage(evidence.reopen),
     _stage(debris.fins),
     _stage(debris.crumbs),
     _stage(debris.rim, required=True),
@@ -113,7 +116,7 @@ def run(pd, walls: np.ndarray, normals=None, samples: np.ndarray | None = None,
                        np.array(points, dtype=np.float64))
     if normals is not None:
         normals = (np.asarray(normals[0], dtype=np.float64), np.asarray(normals[1], dtype=np.float64))
-    state = SurfaceState(pd, walls, normals, samples, cfg.seed, cfg.workers)
+    state = SurfaceState(pd, walls, normals, samples, cfg.seed, cfg.workers, cfg.mode)
     records = {}
     for stage in STAGES:
         if stage.name not in cfg.skip and (cfg.clean or not stage.cleanup):

@@ -85,6 +85,23 @@ class Lids:
 
 
 @dataclass(frozen=True)
+class Reopen:
+    """Lids, fills and spans the input shows to be holes of the shape, taken out again
+    (`dmesh.surface.evidence`; `SurfaceConfig.mode` "auto")."""
+
+    NAME = "reopen"
+    neighbours: int = 8          # a sample's spacing is its mean distance to this many nearest samples (counts)
+    ratio: float = 2.0           # a point is seen when a sample lies within this many of that sample's spacings
+    share: float = 0.5           # a piece more than this fraction unseen (by area), and larger than a disc of
+                                 # `ratio` spacings, is a hole the input shows, and stays open
+
+    def __post_init__(self):
+        _at_least(self, 1, "neighbours")
+        _at_least(self, 0.0, "ratio")
+        _fraction(self, "share")
+
+
+@dataclass(frozen=True)
 class Fills:
     """Small holes of the closed part filled over their own rim (`dmesh.surface.holes.fill_holes`)."""
 
@@ -234,8 +251,11 @@ class Fair:
         _at_least(self, 0, "untangle_rounds")
 
 
+#: `SurfaceConfig.mode`'s values: which holes the surface step closes.
+MODES = ("auto", "closed", "open")
+
 #: The section classes, by field name of `SurfaceConfig` (the name of the stage each belongs to).
-SECTIONS = {cls.NAME: cls for cls in (Vote, Revote, Pinches, Lids, Fills, Spans, Crumbs, Stacked, WindSheets,
+SECTIONS = {cls.NAME: cls for cls in (Vote, Revote, Pinches, Lids, Fills, Spans, Reopen, Crumbs, Stacked, WindSheets,
                                       SheetHoles, ClosedCrumbs, Copies, Fair)}
 
 
@@ -250,6 +270,7 @@ class SurfaceConfig:
     lids: Lids = Lids()                      # large holes closed by the inside tets' boundary
     fills: Fills = Fills()                   # small holes of the closed part filled
     spans: Spans = Spans()                   # long closed-part faces faired like lids
+    reopen: Reopen = Reopen()                # lids, fills and spans over holes the input shows, taken out
     crumbs: Crumbs = Crumbs()                # stray sheet pieces dropped
     stacked: Stacked = Stacked()             # stray copies lying on a larger surface dropped
     wind_sheets: WindSheets = WindSheets()   # sheets wound and turned to the normals
@@ -261,6 +282,10 @@ class SurfaceConfig:
     workers: int = 1             # threads of the k-d tree queries (input normals)
     clean: bool = True           # False: orientation only (the labelling and the sheets' winding), no clean-up
     skip: tuple = ()             # names of stages left out (those `dmesh.surface.STAGES` marks not required)
+    mode: str = "auto"           # which holes close: "closed" every hole the stages can close (lids, fills,
+                                 # spans, sheet holes); "open" none (the input's boundary is the shape's); "auto"
+                                 # those the input shows surface across (`reopen`; without input samples, as
+                                 # "closed")
 
     def __post_init__(self):
         for name, cls in SECTIONS.items():
@@ -270,6 +295,8 @@ class SurfaceConfig:
             elif not isinstance(value, cls):
                 raise TypeError(f"SurfaceConfig.{name} must be a {cls.__name__} or a mapping of its fields, got "
                                 f"{type(value).__name__}")
+        if self.mode not in MODES:
+            raise ValueError(f"SurfaceConfig.mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         skip = (self.skip,) if isinstance(self.skip, str) else tuple(self.skip or ())
         object.__setattr__(self, "skip", tuple(str(s) for s in skip))
         if self.skip:
@@ -330,4 +357,4 @@ def _section(cls, values: Mapping, base=None):
     return dataclasses.replace(base if base is not None else cls(), **dict(values))
 
 
-__all__ = ["SurfaceConfig", "SECTIONS", "TOP_FIELDS", *[cls.__name__ for cls in SECTIONS.values()]]
+__all__ = ["SurfaceConfig", "SECTIONS", "TOP_FIELDS", "MODES", *[cls.__name__ for cls in SECTIONS.values()]]

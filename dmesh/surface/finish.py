@@ -59,6 +59,7 @@ def fair(state, cfg):
     new = len(f) - n  # faces refinement added (each refined face keeps its index for one of its parts)
     state.lid = np.r_[state.lid, np.ones(new, bool)][keep]
     state.span = np.r_[state.span, np.zeros(new, bool)][keep]
+    state.fill = np.r_[state.fill, np.zeros(new, bool)][keep]
     state.closed = f[keep]
     state.vertices = np.r_[state.vertices, np.full(len(v) - len(state.vertices), -1)]
     state.positions = v

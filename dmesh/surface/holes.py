@@ -33,7 +33,7 @@ def fills(state, cfg):
     if len(state.closed):
         fill, filled, left, crossing = fill_holes(state.points, state.closed, cfg.max_hole, others=state.sheet,
                                                   retries=cfg.retries)
-    state.add_closed(fill)
+    state.add_closed(fill, fill=True)
     state.info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing)
     return state
 
@@ -42,6 +42,9 @@ def sheet_holes(state, cfg):
     """A hole inside a sheet (never its rim) of at most `max_edges` edges is filled where the input sampled across
     it and no loop vertex is an outlier the mesh reached."""
     points, info = state.points, state.info
+    if state.mode == "open":  # the input's boundary is the shape's: no hole is closed
+        info.update(sheet_holes_filled=0, sheet_hole_faces=0)
+        return state
     loops = sheet_hole_loops(points, state.sheet, cfg.max_edges, cfg.max_share, avoid=state.closed,
                              stray_off=cfg.stray_off, neighbours=cfg.stray_neighbours)
     if loops and state.samples is not None and cfg.gap > 0:

@@ -26,14 +26,15 @@ class SurfaceState:
         pd: the `dmesh.wdt.PowerDiagram`; walls: (F,) bool over `pd.faces`, the mesh faces given.
         normals: None, or (points (G, 3), normals (G, 3)) float64 oriented input samples in the frame of `pd`.
         samples: None, or (G, 3) float input points in that frame.
-        seed, workers: `SurfaceConfig`'s run-wide fields.
+        seed, workers, mode: `SurfaceConfig`'s run-wide fields.
         inside: (T,) bool tet labels (the vote, revote and pinches stages); between: (F,) bool, the faces
             between an inside and an outside tet (closed_part); dirs, sign, vote: the vote's walk directions,
             wall signs and settings, which the revote repeats.
         closed: (K, 3) int64 closed-part faces, wound outward; sheet: (S, 3) int64 the other faces. Both index
             `vertices`.
         lid, span: (K,) bool, the closed-part faces of lids (lids stage) and of spans (spans stage), which the
-            fair stage refines and fairs; a face that refinement adds counts as lid.
+            fair stage refines and fairs; a face that refinement adds counts as lid. fill: (K,) bool, the
+            closed-part faces of fills (fills stage).
         vertices: (V,) int64 the point of `pd.points` under each vertex (one per point until split_fans gives a
             point one vertex per fan; -1 for a vertex the fair stage added).
         positions: None (each vertex at its point), or (V, 3) float64 where each vertex lies (copies, fair).
@@ -48,6 +49,7 @@ class SurfaceState:
     samples: np.ndarray | None = None
     seed: int = 0
     workers: int = 1
+    mode: str = "auto"
     inside: np.ndarray | None = None
     between: np.ndarray | None = None
     dirs: np.ndarray | None = None
@@ -57,6 +59,7 @@ class SurfaceState:
     sheet: np.ndarray = field(default_factory=_no_faces)
     lid: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     span: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    fill: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     vertices: np.ndarray | None = None
     positions: np.ndarray | None = None
     hung: np.ndarray = field(default_factory=_no_edges)
@@ -84,12 +87,13 @@ class SurfaceState:
     def set_faces(self, closed: np.ndarray, sheet: np.ndarray) -> None:
         """The closed part and the sheets as they start (closed_part): no lid, no span."""
         self.closed, self.sheet = closed, sheet
-        self.lid, self.span = np.zeros(len(closed), bool), np.zeros(len(closed), bool)
+        self.lid, self.span, self.fill = (np.zeros(len(closed), bool) for _ in range(3))
 
-    def add_closed(self, faces: np.ndarray, lid: bool = False) -> None:
-        """`faces` appended to the closed part (as lids, or as neither lid nor span)."""
+    def add_closed(self, faces: np.ndarray, lid: bool = False, fill: bool = False) -> None:
+        """`faces` appended to the closed part (as lids, as fills, or as neither lid, fill nor span)."""
         self.closed = np.concatenate([self.closed, faces])
         self.lid = np.r_[self.lid, np.full(len(faces), lid)]
+        self.fill = np.r_[self.fill, np.full(len(faces), fill)]
         self.span = np.r_[self.span, np.zeros(len(faces), bool)]
         self.added += len(faces)
 
@@ -106,7 +110,7 @@ class SurfaceState:
     def keep_faces(self, keep: np.ndarray) -> None:
         """Only the faces of `keep` ((K + S,) bool over `faces()`) stay."""
         k = keep[:len(self.closed)]
-        self.closed, self.lid, self.span = self.closed[k], self.lid[k], self.span[k]
+        self.closed, self.lid, self.span, self.fill = self.closed[k], self.lid[k], self.span[k], self.fill[k]
         self.sheet = self.sheet[keep[len(k):]]
         self.dropped += int((~keep).sum())
 

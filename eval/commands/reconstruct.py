@@ -47,6 +47,10 @@ def add_arguments(p):
                    help="points sampled when INPUT is a mesh (default: 100000)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a PointCloudConfig (MultiViewConfig) field (repeatable), e.g. --set num_init=5000")
+    p.add_argument("--surface", choices=["auto", "closed", "open"], default=None,
+                   help="which holes the surface step closes: auto (default) those the input shows surface "
+                        "across, closed every hole it can (a shape known to be closed), open none (the input's "
+                        "boundary is the shape's); docs/surface.md")
     p.add_argument("--state", default=None, help="resumable state file (resumed when it matches)")
     p.add_argument("--preprocess", default="none", metavar="SPEC",
                    help="point clouds: the harness's pre-processing before DMesh, as `dmesh bench --preprocess` "
@@ -277,7 +281,10 @@ def run(args) -> int:
 
     out = check_args(args)
     pre = None  # the pre-processing's record (point clouds with --preprocess)
-    cfg = build_config(args.kind, args.preset, args.seed, _parse_overrides(args.set), args.steps, args.normals)
+    overrides = _parse_overrides(args.set)
+    if args.surface is not None:
+        overrides["surface.mode"] = args.surface
+    cfg = build_config(args.kind, args.preset, args.seed, overrides, args.steps, args.normals)
     if args.kind == "multiview":
         from dmesh.recon.multiview import reconstruct as reconstruct_views
 
