@@ -119,3 +119,28 @@ def test_without_samples_auto_closes_as_closed_does():
     assert seen.info["holes_reopened"] == 0 and np.array_equal(seen.faces, closed.faces)
     unseen = run(pd, holed, samples=centre[walls & (centre[:, 2] < 0.0)], config=config)
     assert unseen.info["holes_reopened"] == 1 and unseen.closed == closed.info["closed_faces"] < closed.closed
+
+
+def test_tet_fills_close_exactly_the_holes_left_open():
+    """A hole that a least-area fill cannot close without crossing the surface is closed by the inside tets'
+    boundary across it: here every hole of a ball with faces taken out, whose closed part plus the tet fills
+    must be a closed 2-manifold again (each edge on exactly two faces)."""
+    from common import ball_labels, cloud_diagram
+    from dmesh import solid
+    from dmesh.surface import STAGES
+    from dmesh.surface.holes import tet_fills
+    from dmesh.surface.state import SurfaceState
+    from dmesh.surface.topology import edge_table
+
+    pd = cloud_diagram(n=1500, seed=4)
+    walls = solid.boundary_mask(pd, ball_labels(pd))
+    holed = walls.copy()
+    holed[np.flatnonzero(walls)[[0, 40, 80]]] = False
+    state = SurfaceState(pd, holed, mode="closed")
+    config = SurfaceConfig()
+    for stage in STAGES[:4]:  # the labelling and the closed part
+        state = stage.fn(state, getattr(config, stage.section) if stage.section else None)
+    assert (edge_table(state.closed)[2] == 1).sum() >= 9  # three holes
+    faces = tet_fills(state)
+    counts = edge_table(np.concatenate([state.closed, faces]))[2]
+    assert len(faces) >= 3 and (counts == 2).all()

@@ -109,6 +109,8 @@ class Fills:
     max_hole: int = 64           # holes with at most this many edges are filled (counts)
     retries: int = 3             # a fill crossing the surface is made again without its crossing triangles at most
                                  # this many times, then left open (counts)
+    tets: bool = True            # ... and then closed by the inside tets' boundary across it instead, where that
+                                 # piece fits the hole (faces of the triangulation: they cross nothing)
 
     def __post_init__(self):
         _at_least(self, 0, "max_hole", "retries")

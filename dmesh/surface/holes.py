@@ -34,8 +34,37 @@ def fills(state, cfg):
         fill, filled, left, crossing = fill_holes(state.points, state.closed, cfg.max_hole, others=state.sheet,
                                                   retries=cfg.retries)
     state.add_closed(fill, fill=True)
-    state.info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing)
+    tets = tet_fills(state) if crossing and cfg.tets else state.closed[:0]
+    state.add_closed(tets, fill=True)
+    state.info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing,
+                      tet_fills=edge_pieces(tets)[0] if len(tets) else 0, tet_fill_faces=int(len(tets)))
     return state
+
+
+def tet_fills(state) -> np.ndarray:
+    """(K, 3) int64 faces closing holes of the closed part that a fill could not close without crossing the
+    surface: for each piece of the inside tets' boundary across a hole (faces of the triangulation, so they cross
+    none of its other faces) whose every rim edge is still a hole's edge, its faces, wound outward."""
+    faces = solid.oriented_boundary(state.pd, state.inside, np.flatnonzero(state.between & ~state.walls))
+    if not len(faces):
+        return faces
+    edges, _, counts = edge_table(state.closed)
+    n = len(state.points)
+
+    def key(e: np.ndarray) -> np.ndarray:
+        return e[:, 0] * n + e[:, 1]
+
+    open_edges = set(key(edges[counts == 1]).tolist())
+    closed_edges = set(key(edges).tolist())
+    count, piece = edge_pieces(faces)
+    he = np.sort(half_edges(faces), axis=1)
+    face = np.arange(len(he)) % len(faces)
+    keys = key(he)
+    on_closed = np.fromiter((k in closed_edges for k in keys.tolist()), bool, len(keys))
+    on_hole = np.fromiter((k in open_edges for k in keys.tolist()), bool, len(keys))
+    rim = np.bincount(piece[face[on_closed]], minlength=count)
+    fits = np.bincount(piece[face[on_closed & on_hole]], minlength=count)
+    return faces[((rim > 0) & (fits == rim))[piece]]
 
 
 def sheet_holes(state, cfg):
