@@ -111,9 +111,11 @@ class Fills:
                                  # this many times, then left open (counts)
     tets: bool = True            # ... and then closed by the inside tets' boundary across it instead, where that
                                  # piece fits the hole (faces of the triangulation: they cross nothing)
+    tets_sheets: float = 1e-3    # ... on a closed input only: sheets at most this fraction of all faces
 
     def __post_init__(self):
         _at_least(self, 0, "max_hole", "retries")
+        _fraction(self, "tets_sheets")
 
 
 @dataclass(frozen=True)
