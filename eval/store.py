@@ -454,7 +454,9 @@ class Store:
             rec = {k: v for k, v in r.items() if k not in ("metrics_json", "timings_json")}
             rec["config"] = r["config_json"]
             rec["info"] = r["info_json"] or {}
-            rec.update(r["metrics_json"] or {})
+            # A metric named like a run column (the metrics' own "seed", their sampling seed) must not replace
+            # it: it is kept as metric_NAME.
+            rec.update({f"metric_{k}" if k in r else k: v for k, v in (r["metrics_json"] or {}).items()})
             for k, v in (r["timings_json"] or {}).items():
                 rec[f"time_{k}"] = v
             rec["time_s"] = (r["timings_json"] or {}).get("total")

@@ -457,3 +457,16 @@ def test_ray_executor_path_claims_runs_too(fake, tmp_path):
     assert [seed for seed, _ in _calls(counter)] == [0]
     with Store(runner.db_path) as s:
         assert s.counts() == {"done": 2}
+
+
+def test_a_metric_named_like_a_run_column_does_not_replace_it(tmp_path):
+    """The metrics hold their own sampling "seed"; the report frame keeps the run's seed (a rerun at seed 2 is
+    not taken for another run of seed 0) and the metric's as metric_seed."""
+    db = tmp_path / "results.sqlite"
+    lease = Lease.new()
+    with Store(db) as s:
+        for key, seed in (("a", 0), ("b", 2)):
+            assert s.claim({**_row(key), "seed": seed}, lease) == "claimed"
+            s.finish(key, status="done", metrics={"cd_p2s": 1e-3, "seed": 0}, timings={"total": 1.0}, lease=lease)
+        df = s.dataframe()
+    assert sorted(df["seed"].astype(int)) == [0, 2] and list(df["metric_seed"]) == [0, 0]
