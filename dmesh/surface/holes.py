@@ -34,9 +34,8 @@ def fills(state, cfg):
         fill, filled, left, crossing = fill_holes(state.points, state.closed, cfg.max_hole, others=state.sheet,
                                                   retries=cfg.retries)
     state.add_closed(fill, fill=True)
-    # Only on a closed input (sheets, but for fins, at most `tets_sheets` of the faces: the crumbs stage's debris):
-    # beside real sheets, the tets' boundary across a hole runs through the tight spots between them and the
-    # solid (on the dev split's mixed shapes that raised CD p2s by up to 8 %).
+    # Only on a closed input (sheets, but for fins, at most `tets_sheets` of the faces): beside real sheets the
+    # tets' boundary across a hole runs through tight spots between them and the solid (docs/surface.md).
     sheets = int((~faces_on_edges(state.sheet, state.closed)).sum()) if len(state.sheet) else 0
     closed_input = sheets <= cfg.tets_sheets * (sheets + len(state.closed))
     tets = tet_fills(state) if crossing and cfg.tets and closed_input else state.closed[:0]
