@@ -43,7 +43,11 @@ from baselines.voromesh import VoroMesh  # noqa: E402
 for _paper_baseline in (VoroMesh(), FlexiCubes(), NIE()):
     METHODS[_paper_baseline.name] = _paper_baseline
 
-from baselines.decimate import bpa_qem, psr_qem  # noqa: E402  (reconstruct, then quadric edge collapse)
+from baselines.decimate import DecimatedGT, bpa_qem, psr_qem, sdf_mc_qem  # noqa: E402  (reconstruct, then QEM)
 
-for _decimated in (psr_qem(), bpa_qem()):
+for _decimated in (psr_qem(), bpa_qem(), sdf_mc_qem(), DecimatedGT()):
     METHODS[_decimated.name] = _decimated
+
+from baselines.alpha_budget import AlphaWrapBudget  # noqa: E402  (alpha wrapping at a face budget)
+
+METHODS[AlphaWrapBudget.name] = AlphaWrapBudget()

@@ -175,7 +175,8 @@ def test_empty_store_gives_empty_tables_not_errors(tmp_path):
     assert names == sorted(["table2_pointcloud.md", "table2_pointcloud.csv", "table2_multiview.md",
                             "table2_multiview.csv", "table1.md", "table1.csv", "index.html", "ablation_weight.md",
                             "ablation_weight.csv", "ablation_quality.md", "ablation_quality.csv",
-                            "recipes_size.md", "recipes_size.csv", "checks.md", "checks.csv"])
+                            "recipes_size.md", "recipes_size.csv", "compact.md", "compact.csv", "checks.md",
+                            "checks.csv"])
     assert "No point cloud runs" in (tmp_path / "rep" / "table2_pointcloud.md").read_text()
     assert "Runs with a monitored curve: 0; over 1.25x: 0." in (tmp_path / "rep" / "checks.md").read_text()
 
@@ -510,3 +511,37 @@ def test_provenance_counts_runs_of_earlier_code_and_earlier_metrics(tmp_path):
     md, _ = tables.write_table2(df, tmp_path / "rep", "pointcloud")
     text = md.read_text()
     assert "## Provenance" in text and "| psr | 4 | 1 | 2 |" in text
+
+
+def test_compact_report_ratios_against_the_best_classical_row_and_stays_out_of_table2(tmp_path):
+    """Matched budgets (`eval.reports.compact`): per split, class and budget, DMesh `compact`'s mean CD over
+    the best classical row's; the floor beside it; none of these runs in Table 2 or Table 1."""
+    from eval.reports.compact import budget_of, compact_rows, ratio_rows
+
+    path = tmp_path / "s.sqlite"
+    runs = [("d0", "dmesh", "faces=5000,preset=compact", "torus", 1e-3, 0), ("d1", "dmesh", "faces=5000,preset=compact",
+            "torus", 3e-3, 1), ("p0", "psr_qem", "faces=5000", "torus", 4e-3, 0), ("p1", "psr_qem", "faces=5000",
+            "torus", 4e-3, 1), ("b0", "bpa_qem", "faces=5000", "torus", 5e-3, 0),
+            ("g0", "gt_qem", "faces=5000", "torus", 0.1e-3, 0), ("f0", "psr", "", "torus", 0.2e-3, 0)]
+    with Store(path) as s:
+        for key, method, label, shape, cd, seed in runs:
+            r = _row(key, method, shape, "closed", "done", metrics={"cd_p2s": cd, "cd_l1": cd, "faces": 5000,
+                                                                     "watertight": True, "components": 1},
+                     time_s=10.0, seed=seed, kind="mesh" if method == "gt_qem" else "pointcloud")
+            r.update(config_label=label)
+            s.upsert(r)
+        df = s.dataframe()
+    assert budget_of("faces=5000,preset=compact") == 5000 and budget_of("preset=paper") is None
+    rows = compact_rows(df)
+    assert [r["key"] for r in rows] == ["dmesh", "bpa_qem", "psr_qem", "gt_qem"]
+    assert rows[0]["n"] == 2 and rows[0]["cd_p2s"] == pytest.approx(2e-3) and rows[0]["watertight"] == 2
+    (ratio,) = ratio_rows(rows)
+    assert ratio["best_classical"] == "psr_qem [faces=5000]" and ratio["ratio"] == pytest.approx(0.5)
+    assert ratio["floor_cd_p2s"] == pytest.approx(0.1e-3) and ratio["split"] == "dev"
+    write_reports(path, tmp_path / "rep", renders=False)
+    table2 = list(csv.DictReader(open(tmp_path / "rep" / "table2_pointcloud.csv")))
+    assert [r["method"] for r in table2] == ["psr"]
+    assert not list(csv.DictReader(open(tmp_path / "rep" / "table1.csv")))
+    text = (tmp_path / "rep" / "compact.md").read_text()
+    assert "| dev | closed | 5000 | 2 | 2.00 | psr_qem [faces=5000] | 4.00 | 0.50 | 0.100 |" in text, text
+    assert (tmp_path / "rep" / "figures" / "compact.png").is_file()

@@ -43,7 +43,7 @@ import torch
 from torch.autograd.function import once_differentiable
 
 from dmesh import native
-from dmesh.reference.chamfer import expected_min_distance, first_occurrence, sample_term, target_term
+from dmesh.reference.chamfer import expected_min_distance, first_occurrence, miss_term, sample_term, target_term
 from dmesh.tolerances import DIVISION_FLOOR
 
 #: Implementations of `ExpectedChamfer` (module docstring).
@@ -230,6 +230,10 @@ class ExpectedChamfer:
             tangential part of each offset, relative to the target point's normal, is scaled by it, which lowers
             the loss's sampling floor (`python -m studies loss_floor`).
         k_normal: target neighbours searched per sample when the normal term is on.
+        coverage: False (the paper): a target row's probability mass beyond its K candidates is dropped, so
+            lowering every probability lowers the loss; True (not upstream; the `compact` preset): that mass
+            is charged at the row's farthest candidate's distance (`dmesh.reference.chamfer.miss_term`), so
+            the loss never rewards losing surface.
         k_first: neighbours every target row takes first; only the rows that keep more than `mass_tol` of
             probability beyond them take the full K (0, or at least K: every row takes K, as upstream). Not
             with the normal term (its rows are re-sorted, so they take K).
@@ -250,6 +254,7 @@ class ExpectedChamfer:
     impl: str = "native"
     tangent_weight: float = 1.0
     k_first: int = 16
+    coverage: bool = False
     k: int = field(init=False)
 
     def __post_init__(self):
@@ -310,9 +315,12 @@ class ExpectedChamfer:
         k1 = k if use_normals or not 0 < self.k_first < k else self.k_first
         if self.impl == "native":
             sample_tree = native.point_tree(sp, _SAMPLE_LEAF)
-            expected, residual = self._native_rows(samples, sample_tree, k, k1, use_normals)
+            expected, residual, rows = self._native_rows(samples, sample_tree, k, k1, use_normals)
         else:
-            expected, residual = self._reference_rows(samples, sp, k, k1, use_normals)
+            expected, residual, rows = self._reference_rows(samples, sp, k, k1, use_normals)
+        if self.coverage:
+            expected = expected + miss_term(self._target_t, samples.points, samples.prob, samples.face, rows,
+                                            self._normals_t, tw)
         cd_gt = expected.mean()
 
         kk = min(self.k_normal, len(self.target)) if use_normals or tw < 1.0 else 1
@@ -335,16 +343,16 @@ class ExpectedChamfer:
         return max(1, min(int(self.workers), torch.get_num_threads()))
 
     def _native_rows(self, samples: SurfaceSamples, sample_tree, k: int, k1: int,
-                     use_normals: bool) -> tuple[torch.Tensor, torch.Tensor]:
-        """(expected, residual) of the target rows, native kNN search and kernel: every row at its k1 nearest
-        samples, the rows that keep more than mass_tol beyond them at k, in one autograd node (rows of two
-        lengths, the shorter ones ending at -1)."""
+                     use_normals: bool) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+        """(expected, residual, rows) of the target rows, native kNN search and kernel: every row at its k1
+        nearest samples, the rows that keep more than mass_tol beyond them at k, in one autograd node (rows of
+        two lengths, the shorter ones ending at -1); rows: the (G, K) sample ids taken."""
         normals = self._normals_t if self.tangent_weight < 1.0 else None
         knn = native.knn_search_trees(sample_tree, self._tree, k1, self._workers)
         if use_normals:
-            return target_term(self._target_t, samples.points, samples.prob, samples.face,
-                               torch.from_numpy(knn.astype(np.int64)), self._normals_t, samples.normals,
-                               self.lambda_normal, self.tangent_weight)
+            return (*target_term(self._target_t, samples.points, samples.prob, samples.face,
+                                 torch.from_numpy(knn.astype(np.int64)), self._normals_t, samples.normals,
+                                 self.lambda_normal, self.tangent_weight), knn)
 
         def forward(rows, ids):
             return native.expected_chamfer_forward(self._target if rows is None else self._target[rows],
@@ -366,12 +374,12 @@ class ExpectedChamfer:
                 rows[hard] = hard_ids
                 knn = rows
                 expected[hard], residual[hard] = forward(hard, hard_ids)
-        return expected_distance(self._target_t, samples.points, samples.prob, samples.face, knn,
-                                 num_threads=self._workers, target_normals=normals,
-                                 tangent_weight=self.tangent_weight, known=known)
+        return (*expected_distance(self._target_t, samples.points, samples.prob, samples.face, knn,
+                                   num_threads=self._workers, target_normals=normals,
+                                   tangent_weight=self.tangent_weight, known=known), knn)
 
     def _reference_rows(self, samples: SurfaceSamples, sp: np.ndarray, k: int, k1: int,
-                        use_normals: bool) -> tuple[torch.Tensor, torch.Tensor]:
+                        use_normals: bool) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         """`_native_rows` with SciPy's cKDTree and the torch terms of `dmesh.reference.chamfer`."""
         from scipy.spatial import cKDTree
 
@@ -382,19 +390,23 @@ class ExpectedChamfer:
             _, idx = tree.query(target, kk, workers=self._workers)
             idx = torch.from_numpy(np.asarray(idx, dtype=np.int64).reshape(len(target), kk))
             normals = self._normals_t if rows is None or self._normals_t is None else self._normals_t[rows]
-            return target_term(torch.from_numpy(target), samples.points, samples.prob, samples.face, idx,
-                               normals, samples.normals, self.lambda_normal if use_normals else 0.0,
-                               self.tangent_weight)
+            return (*target_term(torch.from_numpy(target), samples.points, samples.prob, samples.face, idx,
+                                 normals, samples.normals, self.lambda_normal if use_normals else 0.0,
+                                 self.tangent_weight), idx.numpy())
 
-        expected, residual = rows_term(None, k1)
+        expected, residual, ids = rows_term(None, k1)
         if k1 < k:
             hard = np.flatnonzero(residual.detach().numpy() > self.mass_tol)
             if len(hard):
-                e_hard, r_hard = rows_term(hard, k)
+                e_hard, r_hard, hard_ids = rows_term(hard, k)
                 rows = torch.from_numpy(hard)
                 expected = expected.index_put((rows,), e_hard)
                 residual = residual.index_put((rows,), r_hard)
-        return expected, residual
+                padded = np.full((len(ids), k), -1, dtype=np.int64)
+                padded[:, :k1] = ids
+                padded[hard] = hard_ids
+                ids = padded
+        return expected, residual, ids
 
 
 #: Leaf sizes of the native k-d trees, the target's and the samples' (`python -m eval.bench step` times them).

@@ -26,7 +26,7 @@ KERNELS = ("native", "reference")
 TRAIN_ALL = ("points", "weights", "reals")
 #: The default preset of both reconstructions.
 DEFAULT_PRESET = "fast"
-POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "tiny")
+POINTCLOUD_PRESETS = ("paper", "fast", "noisy", "compact", "tiny")
 #: Neighbours of the input smoothing of the `noisy` preset, and of `fast`'s when its input looks noisy.
 NOISY_SMOOTH_K = 120
 #: Real seeds of the `fast` preset: every point of a cloud up to this size (a random subset of a larger one);
@@ -40,6 +40,13 @@ FRAGMENTED_BOUNDARY = 0.1
 #: proportion to their faces; an intact surface's rim grows with the square root of the face count, so a small
 #: intact mesh of a shape with much rim has over 0.1 boundary edges per face. Why: docs/preset_choices.md.
 FRAGMENTED_RIM = 20.0
+#: The `compact` preset's default face budget, and its real seeds per face of the budget: the seeds are chosen so
+#: that the optimised mesh has a few more faces than the budget, which the budget stage then removes (quadric
+#: edge collapse). Why these values: docs/presets.md, "compact".
+COMPACT_FACES = 5000
+COMPACT_SEEDS_PER_FACE = 1.0
+#: Phase-1 steps of the `compact` preset.
+COMPACT_STEPS = 200
 MULTIVIEW_PRESETS = ("paper", "fast", "depth", "refine", "tiny")
 
 
@@ -188,6 +195,16 @@ class PointCloudConfig(Presets):
     knn_k: int = 8                  # neighbours of the kNN candidate triples
     knn_thresholds: tuple = (0.0, 0.2, 0.4, 0.6, 0.8)  # real-value thresholds of the kNN passes
     active_band: float | None = 15.0  # candidates with Delta below -band/alpha get no gradient
+    coverage: bool = False          # True: a target row's probability mass beyond its K nearest samples is charged at
+                                    # the farthest one's distance (not upstream: the paper's loss drops it, so it
+                                    # falls as the surface fades; dmesh.reference.chamfer.miss_term)
+    collapse_share: float = 0.0     # > 0: phase 1 stops once its mesh has fewer faces than this share of the mesh
+                                    # at its first step (not upstream); 0: off
+    best_every: int = 0             # > 0: every this many phase-1 steps (and after the last) the current mesh is
+                                    # scored against the input, without the GT (`input_chamfer`), and phase 2
+                                    # starts from the best state scored (not upstream); 0: the last state
+    faces: int = 0                  # > 0: a face budget (not upstream): a mesh with more faces is reduced to this
+                                    # many by quadric edge collapse (dmesh.recon.budget); 0: none
     threshold: float = 0.5          # real value above which a point is on the final mesh
     extraction: str = "sheet"       # which real faces make the mesh: "all", "no_interior", "sheet" (dmesh.extract)
     orient: bool = True             # output the faces' oriented, closed surface (the surface step, dmesh.surface)
@@ -209,12 +226,16 @@ class PointCloudConfig(Presets):
                 raise ValueError(f"PointCloudConfig.{name} must be 0 (off) or in [6, 1000] (a quadratic jet has 6 "
                                  f"coefficients), got {getattr(self, name)}")
         for name in ("steps_phase1", "steps_phase2", "phase2_patience", "real_ramp_steps", "knn_interval",
-                     "save_every", "k_first"):
+                     "save_every", "k_first", "best_every", "faces"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("lr", "update_bound", "max_real", "domain", "alpha_wdt", "alpha_real"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PointCloudConfig.{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 <= self.collapse_share < 1.0:
+            raise ValueError(f"PointCloudConfig.collapse_share must be in [0, 1) (0: off), got {self.collapse_share}")
+        if 0 < int(self.faces) < 4:
+            raise ValueError(f"PointCloudConfig.faces must be 0 (no budget) or at least 4, got {self.faces}")
         for name in ("outlier_std", "redo_fragmented", "carve", "lambda_weight", "lambda_real_start",
                      "lambda_real_end", "lambda_quality", "lambda_normal", "prob_threshold", "mass_tol"):
             if not getattr(self, name) >= 0:
@@ -277,6 +298,23 @@ class PointCloudConfig(Presets):
         return cls.fast(**{**dict(smooth_k=NOISY_SMOOTH_K, auto_smooth_k=0), **overrides})
 
     @classmethod
+    def compact(cls, **overrides) -> "PointCloudConfig":
+        """A mesh of `faces` faces (default 5000), for users who need a light mesh (not upstream): the `fast`
+        preset's start at `COMPACT_SEEDS_PER_FACE` real seeds per face of the budget, then `COMPACT_STEPS`
+        phase-1 steps on the loss with the tangential part of the Chamfer offsets scaled by 0.2
+        (`tangent_weight`, a lower sampling floor) and the mass beyond each target row's candidates charged
+        (`coverage`), the best state kept by its Chamfer distance to the input (`best_every` 10), the phase
+        stopped if its mesh falls below a quarter of its first faces (`collapse_share`); then the surface step,
+        and the budget stage reduces the mesh to `faces` by quadric edge collapse. Why: docs/presets.md."""
+        faces = int(overrides.get("faces", COMPACT_FACES))
+        if faces < 4:
+            raise ValueError(f"PointCloudConfig.faces must be at least 4 for the compact preset, got {faces}")
+        base = dict(faces=faces, num_init=max(int(round(faces * COMPACT_SEEDS_PER_FACE)), 10),
+                    steps_phase1=COMPACT_STEPS, tangent_weight=0.2, coverage=True, best_every=10,
+                    collapse_share=0.25)
+        return cls.fast(**{**base, **overrides})
+
+    @classmethod
     def tiny(cls, **overrides) -> "PointCloudConfig":
         """Seconds, for tests and the CLI smoke run: 1000 seeds and their poles (~2.5K points), 2 + 15 steps
         at a tenth of the paper's lr, 4K target points and samples."""
@@ -315,5 +353,11 @@ POINTCLOUD_RECIPES = {
                      "nearest neighbours, CGAL's jet smoothing) and at most 20K seeds, where `fast` smooths only "
                      "input that looks noisy. "
                      "On clean input it is several times worse than `fast`."),
+    "compact": (True, "not in the paper, a mesh of N faces (`faces`, default 5000): the `fast` start at N seeds "
+                      "(and their poles), 200 phase-1 steps (positions, weights, reals) on the expected Chamfer "
+                      "with the tangential part of the offsets scaled by 0.2 and the probability mass beyond each "
+                      "target row's candidates charged (the paper drops it), the state of the best Chamfer "
+                      "distance to the input kept, then the surface step and quadric edge collapse down to N "
+                      "faces. Differs: N seeds (paper 10K) + poles, 200 steps (paper 1000 + 500), a budget."),
     "tiny": (True, "tests only: 1000 seeds + poles, 2 + 15 steps at lr 3e-5, 4K target points."),
 }

@@ -62,7 +62,9 @@ from dmesh.geometry import gather
 from dmesh.losses.chamfer import ExpectedChamfer, sample_faces
 from dmesh.losses.regularizers import add_phase1_regularizers, real_regularizer
 from dmesh.probability import dmin
+from dmesh.recon.budget import reduce_to_budget
 from dmesh.recon.config import FRAGMENTED_RIM, POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
+from dmesh.recon.guard import BestState, collapsed
 from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_and_voronoi, smooth_points,
                               statistical_inliers)
 from dmesh.recon.loop import (Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces, mesh_mask,
@@ -77,6 +79,9 @@ log = logging.getLogger(__name__)
 MIN_POINTS = 10
 #: Half-size of the box whose corners are added as imaginary points (unit-radius frame).
 CORNER_BOX = 1.25
+#: With `best_every`: phase 2 starts from the best state scored when the last state scores this much worse
+#: (relative; `_Run.keep_best`).
+BEST_MARGIN = 0.1
 
 
 @dataclass
@@ -134,7 +139,10 @@ class _Run:
             probe = (every, lambda params, record: fn({**params, "center": self.center, "scale": self.scale}, record))
         self.loop = Loop(callback, state_path, fingerprint(pts_in, cfg), cfg.save_every,
                          extra_state=lambda: {"k": self.chamfer.k, "rng": self.rng.bit_generator.state,
-                                              "probability": self.dm.state}, probe=probe)
+                                              "probability": self.dm.state,
+                                              "best": None if self.best is None else self.best.state()},
+                         probe=probe)
+        self.best, self.first_faces = None, None  # the phase-1 guard (dmesh.recon.guard)
         self.clock = self.loop.clock
         self.with_normals = cfg.lambda_normal > 0
         self._phase2_mask, self._phase2_same = None, 0  # the last phase-2 mesh, and the steps it has held
@@ -195,7 +203,10 @@ class _Run:
             uses_normals = cfg.lambda_normal > 0 or cfg.tangent_weight < 1.0
             self.chamfer = ExpectedChamfer(target, target_n if uses_normals else None, k_max=cfg.k_max,
                                            mass_tol=cfg.mass_tol, k_first=cfg.k_first, lambda_normal=cfg.lambda_normal,
-                                           workers=cfg.workers, impl=cfg.kernels, tangent_weight=cfg.tangent_weight)
+                                           workers=cfg.workers, impl=cfg.kernels, tangent_weight=cfg.tangent_weight,
+                                           coverage=cfg.coverage)
+            if cfg.best_every > 0:
+                self.best = BestState(target, cfg.seed, cfg.workers)
         self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
         return {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
                 "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": self.loop.fingerprint}
@@ -222,6 +233,10 @@ class _Run:
             self.opt.load_state_dict(resumed["optimizer"])
         self.chamfer.k = int(resumed["k"])
         self.rng.bit_generator.state = resumed["rng"]
+        if self.best is not None:
+            self.best.restore(resumed.get("best"))
+        first = [r["faces"] for r in self.loop.history if r.get("phase") == 1 and "faces" in r]
+        self.first_faces = first[0] if first else None
         info["resumed_from"] = {"phase": phase, "step": start, "seconds": self.loop.earlier_seconds}
         log.info("resuming from phase %d step %d", phase, start)
         return phase, start
@@ -239,8 +254,44 @@ class _Run:
             loss, fig = self.chamfer(samples)
         with clock("phase1_regularizers"):
             loss = add_phase1_regularizers(loss, dm, probs, pd, cfg, step)
-        return loss, {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
-                      "candidates": int(len(probs.faces)), "samples": len(samples)}
+        figures = {"cd_gt": fig["cd_gt"], "cd_ours": fig["cd_ours"], "k": fig["k"], "faces": int(hard.sum()),
+                   "candidates": int(len(probs.faces)), "samples": len(samples)}
+        if self.first_faces is None:
+            self.first_faces = figures["faces"]
+        if self.best is not None and step % cfg.best_every == 0:
+            with clock("phase1_guard"):
+                figures["input_cd"] = self.best.offer(step, dm.points, dm.weights, dm.reals, pd.faces[hard])
+        return loss, figures
+
+    def phase1_collapsed(self, figures: dict) -> bool:
+        """The `stop` rule of phase 1 (`collapse_share` > 0): its mesh has fewer faces than that share of the
+        first step's (dmesh.recon.guard)."""
+        return collapsed(figures["faces"], self.first_faces, self.cfg.collapse_share)
+
+    def keep_best(self, info: dict, steps: int, collapsed_at: int | None) -> None:
+        """After phase 1 with `best_every` > 0: scores the last state too; phase 2 starts from the best state
+        scored when the phase collapsed (`collapsed_at`, its step) or when the last state scores more than
+        `BEST_MARGIN` worse (a mesh losing surface; the score's sampling noise is about 0.5 %), else from the last
+        (info["best_state"]: the step phase 2 starts from, the best and the last scores)."""
+        from dmesh.model import DMesh
+
+        if self.best is None:
+            return
+        dm = self.dm
+        with self.clock("phase1_guard"):
+            pd = dm.power_diagram()
+            last = self.best.offer(steps, dm.points, dm.weights, dm.reals,
+                                   pd.faces[mesh_mask(dm.reals, pd.faces, self.cfg.threshold)])
+        kept = self.best.step != steps and (collapsed_at is not None or last > (1.0 + BEST_MARGIN) * self.best.score)
+        info["best_state"] = {"step": self.best.step if kept else steps, "best_step": self.best.step,
+                              "best_score": self.best.score, "last_score": last, "last_step": steps}
+        if kept:
+            p = self.best.params
+            log.info("phase 1: keeping the state of step %d (input Chamfer %.3g; the last state's %.3g)",
+                     self.best.step, self.best.score, last)
+            with torch.no_grad():
+                self.dm = DMesh(p["points"].clone(), p["weights"].clone(), p["reals"].clone(),
+                                self.cfg.probability_config())
 
     def start_phase2(self) -> None:
         """The phase-2 optimiser (reals only), saved as the state at phase 2 step 0."""
@@ -335,7 +386,8 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     if cfg.lambda_normal > 0 and nrm_in is None:
         raise ValueError("lambda_normal > 0 needs normals")
     if cfg.tangent_weight < 1.0 and nrm_in is None:
-        raise ValueError("tangent_weight < 1 needs normals")
+        raise ValueError("tangent_weight < 1 (the compact preset's 0.2) needs input normals; give normals or set "
+                         "tangent_weight=1")
     result = _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe)
     if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0:
         boundary, count = _rim(result)
@@ -352,6 +404,13 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
             result.info["fragmented_attempt"] = first
             for key, seconds in spent.items():
                 result.timings[key] = result.timings.get(key, 0.0) + seconds
+    if cfg.faces > 0:
+        result.mesh, result.info["budget"] = reduce_to_budget(result.mesh, cfg.faces)
+        result.timings["budget"] = result.info["budget"]["seconds"]
+        result.timings["budget_cpu"] = result.info["budget"]["cpu_seconds"]
+        for key in ("total", "total_cpu"):
+            result.timings[key] = result.timings.get(key, 0.0) + result.timings[key.replace("total", "budget")]
+        result.info["faces"] = int(len(result.mesh.faces))
     return result
 
 
@@ -375,7 +434,14 @@ def _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe) -> Point
     phase, start = run.resume(info)
     if phase == 1:
         run.loop.stage("phase1")
-        run.loop.run_phase(run.phase1_step, run.opt, cfg.steps_phase1, start, {"phase": 1}, "phase1_")
+        if run.loop.run_phase(run.phase1_step, run.opt, cfg.steps_phase1, start, {"phase": 1}, "phase1_",
+                              stop=run.phase1_collapsed if cfg.collapse_share > 0 else None):
+            info["phase1_collapsed_at"] = int(run.loop.history[-1]["step"])
+            log.warning("phase 1 stopped at step %d: its mesh fell to %d faces, under %.2f of its first %d",
+                        info["phase1_collapsed_at"], run.loop.history[-1]["faces"], cfg.collapse_share,
+                        run.first_faces)
+        if cfg.steps_phase1 > 0:  # the state now: the collapsed step's (no update), else the last step's
+            run.keep_best(info, info.get("phase1_collapsed_at", cfg.steps_phase1), info.get("phase1_collapsed_at"))
         start = 0
         run.start_phase2()
     run.freeze_wdt()

@@ -92,6 +92,41 @@ def target_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, 
     return expected_min_distance(d, prob[knn], face[knn])
 
 
+def miss_term(target: torch.Tensor, points: torch.Tensor, prob: torch.Tensor, face: torch.Tensor, knn,
+              target_normals: torch.Tensor | None = None, tangent_weight: float = 1.0) -> torch.Tensor:
+    """Each target row's probability mass beyond its candidates, charged at its farthest candidate's distance
+    (not upstream; `ExpectedChamfer.coverage`).
+
+    The expected nearest distance of a row (`expected_min_distance`) drops the mass prod_i (1 - P_i) that no
+    candidate exists, as if the nearest sample beyond the K candidates lay at distance 0. So lowering every
+    probability lowers the loss, and a run can trade its surface away (the mesh empties while the loss
+    falls). Charging that mass at the farthest candidate's distance makes the row's figure the expected
+    distance to the nearest existing sample capped at that distance, a lower bound that never rewards less
+    surface: d/dP_i of the sum is (d_i - [distance of the rest]) times the mass before i, <= 0.
+
+    Args:
+        target: (G, 3) float64; points: (S, 3) float64 sample positions; prob: (S,) Lambda of each sample's
+            face; face: (S,) int64 face ids; knn: (G, K) int sample ids of each row (rows may end early at -1).
+        target_normals, tangent_weight: the rows' distances with the tangential part scaled
+            (`plane_weighted_distance`), as the rows were taken.
+    Returns:
+        (G,) float64: residual x farthest distance, differentiable in prob (the distance is a constant).
+    """
+    knn = torch.as_tensor(knn).long()
+    valid = knn >= 0
+    ids = knn.clamp_min(0)
+    first = first_occurrence(torch.where(valid, face[ids], -1)) & valid
+    residual = torch.prod(1.0 - prob[ids] * first.to(prob.dtype), dim=1)
+    with torch.no_grad():
+        offset = points.detach()[ids] - target[:, None, :]
+        if target_normals is not None and tangent_weight < 1.0:
+            d = plane_weighted_distance(offset, target_normals[:, None, :], tangent_weight)
+        else:
+            d = offset.norm(dim=-1)
+        far = torch.where(valid, d, torch.zeros_like(d)).max(dim=1).values
+    return residual * far
+
+
 def sample_term(points: torch.Tensor, prob: torch.Tensor, target: torch.Tensor, nearest: torch.Tensor,
                 normals: torch.Tensor | None = None, target_normals: torch.Tensor | None = None,
                 lambda_normal: float = 0.0, tangent_weight: float = 1.0) -> torch.Tensor:
@@ -110,4 +145,5 @@ def sample_term(points: torch.Tensor, prob: torch.Tensor, target: torch.Tensor, 
     return prob * e.min(dim=1).values
 
 
-__all__ = ["first_occurrence", "expected_min_distance", "plane_weighted_distance", "target_term", "sample_term"]
+__all__ = ["first_occurrence", "expected_min_distance", "miss_term", "plane_weighted_distance", "target_term",
+           "sample_term"]

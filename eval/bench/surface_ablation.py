@@ -71,7 +71,12 @@ def _figures(mesh, gt, n: int, seed: int) -> dict:
             "watertight": bool(stats.get("watertight")), "faces": int(len(f))}
 
 
-def _state(shape: str, seed: int, work: Path, n_points: int):
+#: Input variants: the clean cloud (Table 2's) and the noise-free 6-camera scan of the robustness sweeps
+#: (`eval/sweeps/robustness.yaml`: occlusion holes and unseen stretches, where lids, spans and fairing act).
+INPUTS = {"clean": {}, "scan": {"scan": 6}}
+
+
+def _state(shape: str, seed: int, work: Path, n_points: int, variant: dict | None = None):
     """The GT, the input and the final triangulation of DMesh `fast` (as the harness runs it) for one shape."""
     from baselines.dmesh_pointcloud import harness_config
     from dmesh.extract import mesh_faces
@@ -81,7 +86,8 @@ def _state(shape: str, seed: int, work: Path, n_points: int):
     from eval.shapes import resolve_shape
 
     ref, gt_path = prepare_gt(resolve_shape(shape), work)
-    path = prepare_input(ref, gt_path, "pointcloud", {"radius": 1.0, "n_points": n_points}, seed, work)
+    path = prepare_input(ref, gt_path, "pointcloud", {"radius": 1.0, "n_points": n_points, **(variant or {})}, seed,
+                         work)
     data = np.load(path)
     points, normals = data["points"], data["normals"]
     cfg = harness_config(PointCloudConfig.fast(seed=seed))
@@ -92,12 +98,13 @@ def _state(shape: str, seed: int, work: Path, n_points: int):
     return load_gt(gt_path), pd, walls, (unit, np.asarray(normals, np.float64)), result, cfg
 
 
-def _run_shape(split: str, cls: str, shape: str, seed: int, work: Path, n: int, points: int) -> list[dict]:
+def _run_shape(split: str, cls: str, shape: str, seed: int, work: Path, n: int, points: int,
+               variant: dict | None = None) -> list[dict]:
     import trimesh
 
     from dmesh.surface import surface_mesh
 
-    gt, pd, walls, (unit, normals), result, cfg = _state(shape, seed, work, points)
+    gt, pd, walls, (unit, normals), result, cfg = _state(shape, seed, work, points, variant)
     gt_edges, gt_length = _boundary(np.asarray(gt.vertices), np.asarray(gt.faces))
     gt_components = int(len(trimesh.graph.connected_components(gt.face_adjacency, nodes=np.arange(len(gt.faces)))))
     rows = []
@@ -197,8 +204,12 @@ def cli(argv=None) -> int:
     p.add_argument("--work", default="runs/paper", help="the harness work folder whose input cache to use")
     p.add_argument("--metric-samples", type=int, default=20_000)
     p.add_argument("--points", type=int, default=100_000, help="input samples (Table 2: 100K)")
+    p.add_argument("--input", choices=sorted(INPUTS), default="clean",
+                   help="clean: Table 2's cloud; scan: the robustness sweeps' noise-free 6-camera scan (rows under "
+                        "split 'SPLIT scan')")
     p.add_argument("--out", default="reports")
     args = p.parse_args(argv)
+    label = args.split if args.input == "clean" else f"{args.split} {args.input}"
     out, work = Path(args.out), Path(args.work)
     path = out / "bench_surface_ablation_runs.csv"
     rows = _read(path)
@@ -206,10 +217,10 @@ def cli(argv=None) -> int:
     for shape in args.shapes or splits.shapes(args.split):
         cls = splits.SPLITS[args.split].get(shape) or splits.shape_class(shape)
         for seed in args.seeds:
-            if (args.split, shape, str(seed)) in done:
+            if (label, shape, str(seed)) in done:
                 continue
             try:
-                new = _run_shape(args.split, cls, shape, seed, work, args.metric_samples, args.points)
+                new = _run_shape(label, cls, shape, seed, work, args.metric_samples, args.points, INPUTS[args.input])
             except Exception as exc:  # a failed shape is reported and the ablation goes on
                 log.error("%s seed %d failed: %s", shape, seed, exc)
                 continue

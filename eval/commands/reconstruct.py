@@ -35,7 +35,8 @@ def add_arguments(p):
 
     names = POINTCLOUD_PRESETS + tuple(n for n in MULTIVIEW_PRESETS if n not in POINTCLOUD_PRESETS)
     p.add_argument("--preset", choices=names, default=DEFAULT_PRESET,
-                   help="settings preset (default: fast; noisy: point clouds only, for noisy scans; depth and "
+                   help="settings preset (default: fast; noisy: point clouds only, for noisy scans; compact: point "
+                   "clouds only, a mesh of --faces faces, with gradient steps; depth and "
                    "refine: multiview only, DMesh's point-cloud fit to the lifted depth pixels, refine with "
                    "image-loss steps after it)")
     p.add_argument("--normals", action="store_true",
@@ -51,6 +52,9 @@ def add_arguments(p):
                    help="which holes the surface step closes: auto (default) those the input shows surface "
                         "across, closed every hole it can (a shape known to be closed), open none (the input's "
                         "boundary is the shape's); docs/surface.md")
+    p.add_argument("--faces", type=int, default=None, metavar="N",
+                   help="point clouds: a face budget; the mesh is reduced to N faces when it has more (with "
+                        "--preset compact, which seeds for it: default 5000); docs/presets.md")
     p.add_argument("--state", default=None, help="resumable state file (resumed when it matches)")
     p.add_argument("--preprocess", default="none", metavar="SPEC",
                    help="point clouds: the harness's pre-processing before DMesh, as `dmesh bench --preprocess` "
@@ -284,6 +288,10 @@ def run(args) -> int:
     overrides = _parse_overrides(args.set)
     if args.surface is not None:
         overrides["surface.mode"] = args.surface
+    if args.faces is not None:
+        if args.kind != "pointcloud":
+            raise ValueError("--faces applies to point clouds only")
+        overrides["faces"] = args.faces
     cfg = build_config(args.kind, args.preset, args.seed, overrides, args.steps, args.normals)
     if args.kind == "multiview":
         from dmesh.recon.multiview import reconstruct as reconstruct_views

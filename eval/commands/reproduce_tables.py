@@ -7,8 +7,10 @@ Two sets of sweeps run into one store:
   start) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh);
 - the recipes (`--recipes`, `make reproduce-recipes`): DMesh's long gradient-step recipes,
   `eval/sweeps/recipes.yaml` (the point-cloud `paper` and multi-view `refine` presets on the Table 2 shapes),
-  `eval/sweeps/recipes_size.yaml` (the fast start at the paper preset's mesh sizes: `reports/recipes_size.md`)
-  and `eval/sweeps/multiview_paper.yaml` (the multi-view `paper` preset, hours per shape).
+  `eval/sweeps/recipes_size.yaml` (the fast start at the paper preset's mesh sizes: `reports/recipes_size.md`),
+  `eval/sweeps/compact_floor.yaml` and `compact.yaml` (matched budgets: DMesh `compact` against
+  reconstruct-then-decimate, `reports/compact.md`) and `eval/sweeps/multiview_paper.yaml` (the multi-view
+  `paper` preset, hours per shape).
 
 Either set then writes the reports from every configuration in the store (its latest run, as `--report-only`),
 so the recipes' rows stay in Table 2 after a run of the tables and the other way round; `--sweep FILES` runs
@@ -31,7 +33,8 @@ HELP = "run the paper-style sweeps and regenerate reports/ (tables, figures, ind
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
 DEFAULT_SWEEPS = [str(SWEEPS / name) for name in ("paper.yaml", "table1.yaml")]
 #: `--recipes`: DMesh's long gradient-step recipes (hours; resumable), the multi-view paper preset last.
-RECIPE_SWEEPS = [str(SWEEPS / name) for name in ("recipes.yaml", "recipes_size.yaml", "multiview_paper.yaml")]
+RECIPE_SWEEPS = [str(SWEEPS / name) for name in ("recipes.yaml", "recipes_size.yaml", "compact_floor.yaml",
+                                                  "compact.yaml", "multiview_paper.yaml")]
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +47,7 @@ def add_arguments(p) -> None:
                    help="sweep files, reported alone (default: eval/sweeps/paper.yaml and table1.yaml)")
     p.add_argument("--recipes", action="store_true",
                    help="run DMesh's long gradient-step recipes instead (eval/sweeps/recipes.yaml, recipes_size.yaml, "
-                        "multiview_paper.yaml: many hours on 2 cores, resumable)")
+                        "compact_floor.yaml, compact.yaml, multiview_paper.yaml: many hours on 2 cores, resumable)")
     add_sweep_arguments(p, "runs/paper")
     p.add_argument("--no-renders", action="store_true", help="skip the rendered figures (tables and plots only)")
     p.add_argument("--report-only", action="store_true",

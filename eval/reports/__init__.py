@@ -6,6 +6,8 @@
     table1.md/.csv                                        RE / FP of mesh-to-DMesh runs (paper's Table 1)
     ablation_weight.md/.csv, ablation_quality.md/.csv     regulariser ablations (paper's Tables 4 and 5)
     recipes_size.md/.csv, figures/recipes_size.png        the paper preset against the fast start at equal size
+    compact.md/.csv, figures/compact.png                  matched budgets: DMesh compact against reconstruct +
+                                                          decimate, with the GT-decimation floor
     multiview_fast.md/.csv                                the multi-view fast preset's settings study, per run
     figures/bars_<kind>.png                               per-class bar plots of CD and time
     figures/renders_<kind>_<shape>.png                    GT, input and each method's mesh side by side
@@ -62,6 +64,7 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     """
     from eval.reports import sections
     from eval.reports.ablation import is_ablation
+    from eval.reports.compact import is_compact
     from eval.reports.html import write_index
     from eval.reports.mv_settings import is_mv_settings_study
     from eval.reports.robustness import is_robustness
@@ -76,13 +79,15 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     with Store(db) as store:
         df_all = select_runs(store.dataframe(), keys)
     # Table 2 compares methods at their sweep settings; the regulariser ablations, the DMesh size study, the
-    # multi-view settings study and the runs on corrupted inputs (robustness sweeps) get their own tables.
+    # multi-view settings study, the matched budgets and the runs on corrupted inputs (robustness sweeps) get
+    # their own tables.
     df = (df_all[~is_ablation(df_all) & ~is_size_study(df_all) & ~is_mv_settings_study(df_all)
-                 & ~is_robustness(df_all)] if len(df_all) else df_all)
+                 & ~is_compact(df_all) & ~is_robustness(df_all)] if len(df_all) else df_all)
     counts = df["status"].value_counts().to_dict() if len(df) else {}
     done = [sections.table2_section(df, kind, out) for kind in sections.INPUT_KINDS]
     done += [sections.table1_section(df, out), sections.ablation_section(df_all, out),
-             sections.size_section(df_all, out), sections.mv_settings_section(df_all, out),
+             sections.size_section(df_all, out), sections.compact_section(df_all, out),
+             sections.mv_settings_section(df_all, out),
              sections.robustness_section(df_all, out, db, work, renders), sections.checks_section(df_all, out)]
     if renders and len(df):
         done.append(sections.renders_section(df, db, work, out / "figures", progress=progress))

@@ -132,6 +132,17 @@ def size_section(df_all, out: Path) -> tuple[list[Path], str, str]:
     return files, "DMesh's gradient steps at equal mesh size (point clouds)", "\n".join(body)
 
 
+def compact_section(df_all, out: Path) -> tuple[list[Path], str, str]:
+    """Matched budgets (`eval.reports.compact`), on clean inputs."""
+    from eval.reports.compact import write_compact
+    from eval.reports.robustness import is_robustness
+
+    files = write_compact(df_all[~is_robustness(df_all)] if len(df_all) else df_all, out)
+    body = [_links(files[0], files[1])]
+    body += [f"<img src='figures/{p.name}' alt='CD against faces at matched budgets'>" for p in files[2:]]
+    return files, "Matched budgets: DMesh compact against reconstruct-then-decimate (point clouds)", "\n".join(body)
+
+
 def mv_settings_section(df_all, out: Path) -> tuple[list[Path], str, str] | None:
     """The multi-view fast preset's settings study (`eval.reports.mv_settings`), when it has runs."""
     from eval.reports.mv_settings import write_mv_settings
