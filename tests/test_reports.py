@@ -543,5 +543,6 @@ def test_compact_report_ratios_against_the_best_classical_row_and_stays_out_of_t
     assert [r["method"] for r in table2] == ["psr"]
     assert not list(csv.DictReader(open(tmp_path / "rep" / "table1.csv")))
     text = (tmp_path / "rep" / "compact.md").read_text()
-    assert "| dev | closed | 5000 | 2 | 2.00 | psr_qem [faces=5000] | 4.00 | 0.50 | 0.100 |" in text, text
+    assert ("| dev | closed | 5000 | dmesh [compact: 200 gradient steps; faces=5000] | 2 | 2.00 | psr_qem [faces=5000] "
+            "| 4.00 | 0.50 | 0.100 |") in text, text
     assert (tmp_path / "rep" / "figures" / "compact.png").is_file()

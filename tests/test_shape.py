@@ -1,6 +1,6 @@
 """The harness's shape (issue 60): no module of eval/, datasets/ or baselines/ over 500 lines, no function there
-over 120 lines, and no import cycle between the files of eval/ (imports at module level and inside functions
-alike). Read from the sources, nothing imported."""
+over 120 lines, and no import cycle between the files of a package of the project (imports at module level and
+inside functions alike; `KNOWN_CYCLES` lists the one left). Read from the sources, nothing imported."""
 from __future__ import annotations
 
 import ast
@@ -64,11 +64,19 @@ def long_functions(paths) -> list[str]:
     return out
 
 
+def _compiled(module: str) -> bool:
+    """Whether `module` is a compiled extension of the repository (a `.pyi` stub or a built `.so` beside where its
+    source would be): a leaf that imports nothing of the project, so importing it is not an edge."""
+    base = ROOT.joinpath(*module.split("."))
+    return base.with_suffix(".pyi").is_file() or any(base.parent.glob(base.name + ".*.so"))
+
+
 def import_graph(paths) -> dict[str, dict[str, int]]:
     """{module: {imported module of `paths`: line}} over every import statement of each file, at module level
     or inside a function. `from pkg import name` imports the submodule pkg.name when it is one of `paths`, else
-    pkg itself; a package's `__init__` is not counted as imported by its submodules (Python runs it first, but
-    that is how packages work, not a cycle of the code)."""
+    pkg itself, unless pkg.name is a compiled extension (`_compiled`: it imports nothing back); a package's
+    `__init__` is not counted as imported by its submodules (Python runs it first, but that is how packages work,
+    not a cycle of the code)."""
     names = {_module_name(p): p for p in paths}
     graph: dict[str, dict[str, int]] = {}
     for name, path in names.items():
@@ -84,7 +92,8 @@ def import_graph(paths) -> dict[str, dict[str, int]]:
                     module = ".".join(base + ([node.module] if node.module else []))
                 else:
                     module = node.module or ""
-                targets = [f"{module}.{a.name}" if f"{module}.{a.name}" in names else module for a in node.names]
+                targets = [f"{module}.{a.name}" if f"{module}.{a.name}" in names else module for a in node.names
+                           if not _compiled(f"{module}.{a.name}")]
             else:
                 continue
             for target in targets:
@@ -144,12 +153,19 @@ def test_no_function_over_120_lines():
     assert not found, "functions over 120 lines:\n" + "\n".join(found)
 
 
-def test_no_import_cycle_between_the_files_of_eval():
-    graph = import_graph(sorted((ROOT / "eval").rglob("*.py")))
-    found = cycles(graph)
+#: Import cycles known and waiting: datasets.families and datasets.synthetic import each other (the registry and
+#: the helpers). Both are input generation, whose every edit reruns every stored run (eval.code_hash
+#: INPUT_MODULES), so the split waits for the next full rerun. A cycle not listed here fails.
+KNOWN_CYCLES = [["datasets.families", "datasets.synthetic"]]
+
+
+@pytest.mark.parametrize("package", ["dmesh", "datasets", "baselines", "eval"])
+def test_no_import_cycle_between_the_files_of_a_package(package):
+    graph = import_graph(sorted((ROOT / package).rglob("*.py")))
+    found = [c for c in cycles(graph) if c not in KNOWN_CYCLES]
     text = [" <-> ".join(c) + ": " + ", ".join(f"{a} -> {b} (line {graph[a][b]})" for a in c for b in c
                                                  if b in graph[a]) for c in found]
-    assert not found, "import cycles in eval/:\n" + "\n".join(text)
+    assert not found, f"import cycles in {package}/:\n" + "\n".join(text)
 
 
 @pytest.mark.parametrize("files, expected", [
@@ -158,6 +174,8 @@ def test_no_import_cycle_between_the_files_of_eval():
     # `from pkg import b` imports the submodule b; `from pkg import name` imports pkg's __init__
     ({"a.py": "from pkg import b\n", "b.py": "from pkg import c\n", "c.py": "x = 1\n"}, []),
     ({"__init__.py": "from pkg.a import x\n", "a.py": "from pkg import y\n"}, [["pkg", "pkg.a"]]),
+    # ... but `from pkg import ext` of a compiled extension (a stub beside it) imports that leaf alone
+    ({"__init__.py": "from pkg.a import x\n", "a.py": "from pkg import ext\n", "ext.pyi": "x: int\n"}, []),
     # relative imports resolve against the importing module's package
     ({"a.py": "from . import b\n", "b.py": "from .a import x\n"}, [["pkg.a", "pkg.b"]]),
 ])

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from dmesh.surface import debris, finish, holes
+from dmesh.surface.evidence import Evidence
 from common import grid_sheet
 
 
@@ -93,9 +94,10 @@ def test_stacked_pieces_are_small_pieces_lying_on_a_larger_surface():
 
 def test_stacked_pieces_keep_a_part_the_input_sampled_a_few_spacings_off():
     """On a coarse mesh (unit edges) a triangle half an edge over a larger surface is within its edge length and
-    flagged. With the input's samples (spacing 0.05) the length is at most `Stacked.spacings` (3) of their
+    flagged. With the input's samples (spacing 0.05) the length is at most `Stacked.spacings` (3) of their local
     spacings: the triangle the samples cover on its own, 10 spacings off, stays (an eye in its socket), and one
-    in the band of the surface is still a stray copy."""
+    in the band of the surface is still a stray copy. The local spacing is measured where each face lies: on a
+    grid of samples it is the grid's spacing."""
     v, f = grid_sheet(12)
     band = [[3.2, 3.3, 0.02], [4.1, 3.4, -0.02], [3.6, 4.2, 0.01]]
     eye = [[6.2, 6.3, 0.5], [7.1, 6.4, 0.5], [6.6, 7.2, 0.5]]
@@ -106,8 +108,9 @@ def test_stacked_pieces_keep_a_part_the_input_sampled_a_few_spacings_off():
     plane = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
     bary = np.random.default_rng(0).dirichlet(np.ones(3), 400)
     samples = np.concatenate([plane, bary @ np.array(eye)])
-    assert holes.sample_spacing(samples) == pytest.approx(0.05)
-    assert debris.stacked_pieces(v, faces, samples=samples)[-2:].tolist() == [True, False]
+    evidence = Evidence.of_samples(samples, 8)
+    assert np.median(evidence.spacing_at(plane[::97])) == pytest.approx(0.05)
+    assert debris.stacked_pieces(v, faces, evidence=evidence)[-2:].tolist() == [True, False]
 
 
 def test_floating_crumbs_are_small_pieces_far_from_every_larger_one():

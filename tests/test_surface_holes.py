@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from dmesh.surface import crossings, holes, topology
+from dmesh.surface.evidence import Evidence
 from common import check_closed, cycle, grid_sheet
 
 
@@ -150,12 +151,13 @@ def test_sampled_loops_tell_a_hole_of_the_input_from_a_gap_in_a_sampled_sheet():
     rng = np.random.default_rng(0)
     samples = np.c_[rng.uniform(0, 11, (20_000, 2)), np.zeros(20_000)]
     samples = samples[np.linalg.norm(samples - v[5 * 12 + 8], axis=1) > 1.0]  # no samples in the real hole
-    sampled = holes.sampled_loops(v, loops, samples, 8.0)
+    evidence = Evidence.of_samples(samples, 8)
+    sampled = holes.sampled_loops(v, loops, evidence, 8.0)
     near_real = [np.linalg.norm(c - v[5 * 12 + 8]) < 0.5 for c in centres]
     assert len(loops) == 2 and list(sampled) == [not r for r in near_real]
-    assert holes.sampled_loops(v, loops, samples, 1e6).all()      # a gap that wide counts as sampled
-    assert holes.sampled_loops(v, loops, samples[:1], 8.0).all()
-    assert holes.sampled_loops(v, [], samples, 8.0).shape == (0,)
+    assert holes.sampled_loops(v, loops, evidence, 1e6).all()      # a gap that wide counts as sampled
+    assert holes.sampled_loops(v, loops, Evidence.of_samples(samples[:1], 8), 8.0).all()
+    assert holes.sampled_loops(v, [], evidence, 8.0).shape == (0,)
 
 
 def test_sheet_holes_beside_a_stray_vertex_stay_open():

@@ -28,18 +28,17 @@ DEFAULTS = {
     "lids": {"max_hole": 64},
     "fills": {"max_hole": 64, "retries": 3, "tets": True, "tets_sheets": 1e-3},
     "spans": {"ratio": 6.0},
-    "reopen": {"neighbours": 8, "ratio": 2.0, "share": 0.5},
+    "reopen": {"ratio": 2.0, "share": 0.5},
     "crumbs": {"max_faces": 4, "max_debris": 1e-3, "floating": 4.0, "beside": 0.05, "floating_max_faces": 64,
                "plane_neighbours": 16},
-    "stacked": {"within": 1.0, "max_faces": 64, "neighbours": 16, "over": 0.1, "spacings": 3.0,
-                "spacing_samples": 20_000},
+    "stacked": {"within": 1.0, "max_faces": 64, "neighbours": 16, "over": 0.1, "spacings": 3.0},
     "wind_sheets": {"neighbours": 10, "confident": 0.5, "turn_faces": True},
     "sheet_holes": {"max_edges": 24, "max_share": 0.25, "gap": 8.0, "stray_off": 0.3, "stray_neighbours": 16,
-                    "spacing_samples": 20_000, "retries": 3},
+                    "retries": 3},
     "closed_crumbs": {"max_faces": 4},
     "copies": {"separation": 0.05},
     "fair": {"continuity": 1, "density": 4.0, "untangle_rounds": 5},
-    "seed": 0, "workers": 1, "clean": True, "skip": [], "mode": "auto",
+    "seed": 0, "workers": 1, "spacing_neighbours": 8, "clean": True, "skip": [], "mode": "auto",
 }
 
 
@@ -108,7 +107,7 @@ def test_overrides_by_dotted_key_or_nested_mapping():
              ({"lids.maxhole": 1}, "SurfaceConfig.lids has no field 'maxhole'; its fields: max_hole"),
              ({"lids.max_hole.x": 1}, "deeper than SECTION.FIELD"), ({"lids": 5}, "'lids' is a section"),
              ({"lids.max_hole": -1}, "SurfaceConfig.lids.max_hole must be >= 0"),
-             ({"nope": 1}, "run-wide fields: seed, workers, clean, skip")]
+             ({"nope": 1}, "run-wide fields: seed, workers, spacing_neighbours, clean")]
     for overrides, message in cases:
         with pytest.raises(ValueError, match=re.escape(message)) as info:
             base.with_overrides(overrides)

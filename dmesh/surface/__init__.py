@@ -43,7 +43,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from dmesh.surface import debris, evidence, finish, holes, label, winding
-from dmesh.surface.config import SECTIONS, SurfaceConfig
+from dmesh.surface.config import REQUIRED, SECTIONS, STAGE_NAMES, SurfaceConfig
 from dmesh.surface.state import Surface, SurfaceState
 from dmesh.surface.winding import orient_faces, orient_sheets
 
@@ -60,25 +60,27 @@ class Stage(NamedTuple):
     cleanup: bool
 
 
-def _stage(fn: Callable, required: bool = False, cleanup: bool = True) -> Stage:
-    """The stage of `fn`: a stage is named after its function, and its section (if any) after the stage."""
-    return Stage(fn.__name__, fn, fn.__name__ if fn.__name__ in SECTIONS else None, required, cleanup)
+def _stage(fn: Callable, cleanup: bool = True) -> Stage:
+    """The stage of `fn`: a stage is named after its function, and its section (if any) after the stage; it is
+    required when `dmesh.surface.config.REQUIRED` names it."""
+    name = fn.__name__
+    return Stage(name, fn, name if name in SECTIONS else None, name in REQUIRED, cleanup)
 
 
 STAGES = (
-    _stage(label.vote, required=True, cleanup=False),
+    _stage(label.vote, cleanup=False),
     _stage(label.revote, cleanup=False),
     _stage(label.pinches, cleanup=False),
-    _stage(label.closed_part, required=True, cleanup=False),
+    _stage(label.closed_part, cleanup=False),
     _stage(holes.lids),
     _stage(holes.fills),
     _stage(debris.spans),
     _stage(evidence.reopen),
     _stage(debris.fins),
     _stage(debris.crumbs),
-    _stage(debris.rim, required=True),
+    _stage(debris.rim),
     _stage(debris.stacked),
-    _stage(winding.wind_sheets, required=True, cleanup=False),
+    _stage(winding.wind_sheets, cleanup=False),
     _stage(holes.sheet_holes),
     _stage(finish.split_fans),
     _stage(finish.folds),
@@ -86,6 +88,8 @@ STAGES = (
     _stage(finish.copies),
     _stage(finish.fair),
 )
+if tuple(s.name for s in STAGES) != STAGE_NAMES:  # the config validates `skip` by the names alone
+    raise ImportError("dmesh.surface.STAGES and dmesh.surface.config.STAGE_NAMES list different stages")
 
 
 def run(pd, walls: np.ndarray, normals=None, samples: np.ndarray | None = None,
@@ -116,7 +120,7 @@ def run(pd, walls: np.ndarray, normals=None, samples: np.ndarray | None = None,
                        np.array(points, dtype=np.float64))
     if normals is not None:
         normals = (np.asarray(normals[0], dtype=np.float64), np.asarray(normals[1], dtype=np.float64))
-    state = SurfaceState(pd, walls, normals, samples, cfg.seed, cfg.workers, cfg.mode)
+    state = SurfaceState(pd, walls, normals, samples, cfg.seed, cfg.workers, cfg.mode, cfg.spacing_neighbours)
     records = {}
     for stage in STAGES:
         if stage.name not in cfg.skip and (cfg.clean or not stage.cleanup):

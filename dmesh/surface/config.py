@@ -90,13 +90,11 @@ class Reopen:
     (`dmesh.surface.evidence`; `SurfaceConfig.mode` "auto")."""
 
     NAME = "reopen"
-    neighbours: int = 8          # a sample's spacing is its mean distance to this many nearest samples (counts)
     ratio: float = 2.0           # a point is seen when a sample lies within this many of that sample's spacings
     share: float = 0.5           # a piece more than this fraction unseen (by area), and larger than a disc of
                                  # `ratio` spacings, is a hole the input shows, and stays open
 
     def __post_init__(self):
-        _at_least(self, 1, "neighbours")
         _at_least(self, 0.0, "ratio")
         _fraction(self, "share")
 
@@ -166,13 +164,13 @@ class Stacked:
                                  # edge is the local edge length (counts)
     over: float = 0.1            # "over" a face: the closest point at most this many local edge lengths aside
                                  # from the foot of the perpendicular (edge lengths)
-    spacings: float = 3.0        # with input samples, the local edge length is at most this many sample spacings
-    spacing_samples: int = 20_000  # samples whose nearest-neighbour distance gives the spacing (counts)
+    spacings: float = 3.0        # with input samples, the local edge length is at most this many local sample
+                                 # spacings (sample spacings, `SurfaceConfig.spacing_neighbours`)
 
     def __post_init__(self):
         _at_least(self, 0.0, "within", "over", "spacings")
         _at_least(self, 0, "max_faces")
-        _at_least(self, 1, "neighbours", "spacing_samples")
+        _at_least(self, 1, "neighbours")
 
 
 @dataclass(frozen=True)
@@ -201,17 +199,16 @@ class SheetHoles:
     max_edges: int = 24          # holes with at most this many edges (and as many of the piece's mean edge
                                  # lengths) are filled, never a piece's rim (counts; 0: none)
     max_share: float = 0.25      # ... and with an area of at most this fraction of their piece's
-    gap: float = 8.0             # ... and only where the loop's centre lies within this many sample spacings of an
-                                 # input point (sample spacings; 0: no test)
+    gap: float = 8.0             # ... and only where the loop's centre lies within this many local sample spacings
+                                 # of an input point (sample spacings, `SurfaceConfig.spacing_neighbours`; 0: no test)
     stray_off: float = 0.3       # ... and no loop vertex lies more than this many of its neighbours' mean distances
                                  # off their plane (neighbour spacings; inf: no test)
     stray_neighbours: int = 16   # mesh vertices whose plane the stray test takes (counts)
-    spacing_samples: int = 20_000  # samples whose nearest-neighbour distance gives the spacing (counts)
     retries: int = 3             # a fill crossing the surface is made again at most this many times (counts)
 
     def __post_init__(self):
         _at_least(self, 0, "max_edges", "retries")
-        _at_least(self, 1, "stray_neighbours", "spacing_samples")
+        _at_least(self, 1, "stray_neighbours")
         _fraction(self, "max_share")
         _at_least(self, 0.0, "gap", "stray_off")
 
@@ -255,6 +252,11 @@ class Fair:
         _at_least(self, 0, "untangle_rounds")
 
 
+#: The stages of the surface step in the order they run, and those that may not be skipped (`skip`).
+#: `dmesh.surface.STAGES` pairs each name with its function (and checks the order) at import.
+STAGE_NAMES = ("vote", "revote", "pinches", "closed_part", "lids", "fills", "spans", "reopen", "fins", "crumbs", "rim",
+               "stacked", "wind_sheets", "sheet_holes", "split_fans", "folds", "closed_crumbs", "copies", "fair")
+REQUIRED = ("vote", "closed_part", "rim", "wind_sheets")
 #: `SurfaceConfig.mode`'s values: which holes the surface step closes.
 MODES = ("auto", "closed", "open")
 
@@ -284,6 +286,9 @@ class SurfaceConfig:
     fair: Fair = Fair()                      # lids and spans refined and faired
     seed: int = 0                # rotation of the vote's walk directions
     workers: int = 1             # threads of the k-d tree queries (input normals)
+    spacing_neighbours: int = 8  # an input sample's local spacing: its mean distance to this many nearest samples
+                                 # (counts), scaled so that its median over the samples is their median
+                                 # nearest-neighbour distance (`dmesh.surface.evidence`)
     clean: bool = True           # False: orientation only (the labelling and the sheets' winding), no clean-up
     skip: tuple = ()             # names of stages left out (those `dmesh.surface.STAGES` marks not required)
     mode: str = "auto"           # which holes close: "closed" every hole the stages can close (lids, fills,
@@ -299,14 +304,14 @@ class SurfaceConfig:
             elif not isinstance(value, cls):
                 raise TypeError(f"SurfaceConfig.{name} must be a {cls.__name__} or a mapping of its fields, got "
                                 f"{type(value).__name__}")
+        if int(self.spacing_neighbours) < 1:
+            raise ValueError(f"SurfaceConfig.spacing_neighbours must be >= 1, got {self.spacing_neighbours!r}")
         if self.mode not in MODES:
             raise ValueError(f"SurfaceConfig.mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         skip = (self.skip,) if isinstance(self.skip, str) else tuple(self.skip or ())
         object.__setattr__(self, "skip", tuple(str(s) for s in skip))
         if self.skip:
-            from dmesh.surface import STAGES  # (the package is loaded: this module is part of it)
-
-            optional = [s.name for s in STAGES if not s.required]
+            optional = [s for s in STAGE_NAMES if s not in REQUIRED]
             bad = [s for s in self.skip if s not in optional]
             if bad:
                 raise ValueError(f"SurfaceConfig.skip: {', '.join(map(repr, bad))} cannot be skipped; the stages "

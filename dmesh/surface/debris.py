@@ -9,7 +9,6 @@ import numpy as np
 
 from dmesh.neighbourhoods import SURFACE_VARIATION, plane_offsets
 from dmesh.surface.config import Crumbs, Stacked
-from dmesh.surface.holes import sample_spacing
 from dmesh.surface.topology import (half_edges, edge_pieces, edge_table, edges_in, faces_on_edges,
                                     nonmanifold_edges, rim_edge_count, winding_components)
 from dmesh.tolerances import FLOAT64_FLOOR
@@ -59,8 +58,9 @@ def stacked(state, cfg):
     local edge lengths of it, is a stray copy left by noise and is dropped; the sheet edges it hung on are kept
     apart (split_fans), as the faces left would join there in a twist where the sheet folds over itself."""
     sheet = state.sheet
-    drop = stacked_pieces(state.points, sheet, state.closed, cfg.within, cfg.max_faces, state.samples,
-                          cfg.neighbours, cfg.over, cfg.spacings, cfg.spacing_samples)
+    drop = stacked_pieces(state.points, sheet, state.closed, cfg.within, cfg.max_faces,
+                          None if state.samples is None else state.evidence(), cfg.neighbours, cfg.over,
+                          cfg.spacings)
     hung = nonmanifold_edges(sheet)
     state.hung = hung[edges_in(hung, edge_table(sheet[drop])[0])]
     state.keep_sheet(~drop)
@@ -191,10 +191,9 @@ def _float_apart(v: np.ndarray, pieces: list, base_tree, extra: np.ndarray | Non
 
 
 def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray | None = None,
-                   tol: float = Stacked.within, max_faces: int = Stacked.max_faces, samples: np.ndarray | None = None,
+                   tol: float = Stacked.within, max_faces: int = Stacked.max_faces, evidence=None,
                    neighbours: int = Stacked.neighbours, over: float = Stacked.over,
-                   spacings: float = Stacked.spacings, spacing_samples: int = Stacked.spacing_samples
-                   ) -> np.ndarray:
+                   spacings: float = Stacked.spacings) -> np.ndarray:
     """(F,) bool: the faces of small pieces of `faces` that lie on a larger surface: stray copies of it.
 
     Pieces are joined through edges of two faces (`edge_pieces` with `manifold`: a piece hanging on a
@@ -207,9 +206,9 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
     the larger surface does not, yet each adds a component and three boundary edges, and in a render they
     flicker through the surface. A piece that covers a part of the shape nothing else covers lies farther
     off (a leaf that did not join up) or beside the larger piece's faces (in a hole of it), and stays.
-    `samples`: None, or (G, 3) input points in the frame of `vertices`: with them the length is at most
-    `spacings` of their spacings (`sample_spacing` over `spacing_samples` of them), so on a coarse mesh a piece
-    the input sampled on its own, a few spacings off a larger one, stays. `tol` <= 0 flags nothing.
+    `evidence`: None, or the `dmesh.surface.evidence.Evidence` of the input points in the frame of `vertices`:
+    with it the length is at most `spacings` local sample spacings at the face (`Evidence.spacing_at`), so on a
+    coarse mesh a piece the input sampled on its own, a few spacings off a larger one, stays. `tol` <= 0 flags nothing.
     """
     from scipy.spatial import cKDTree
     from trimesh.triangles import closest_point
@@ -246,8 +245,8 @@ def stacked_pieces(vertices: np.ndarray, faces: np.ndarray, others: np.ndarray |
     aside = np.linalg.norm(offset - along[:, None] * normal, axis=1)  # 0 when q lies over the face
     on = aside <= over * scale[np.repeat(np.arange(len(query)), k)[larger]]
     gap[np.flatnonzero(larger)[on]] = np.abs(along[on])
-    if samples is not None:
-        scale = np.minimum(scale, spacings * sample_spacing(samples, count=spacing_samples))
+    if evidence is not None:
+        scale = np.minimum(scale, spacings * evidence.spacing_at(centres[query]))
     ratio = gap.reshape(len(query), k).min(1) / np.maximum(scale, FLOAT64_FLOOR)
     worst = np.zeros(n)
     np.maximum.at(worst, piece[query], ratio)

@@ -5,8 +5,11 @@ where input points lie across it) or one of the shape itself (the cut end of a t
 a scanner did not see). Only the input can tell them apart, so the stages that close holes (lids, fills,
 spans) keep a patch only where input samples lie across it, in `SurfaceConfig.mode` "auto".
 
-Lengths here are local: each sample's spacing is the mean distance to its `k` nearest neighbours, so a scan
-twice as dense in one place as in another is judged alike in both. A point of a patch is *seen* when its
+Lengths here are local: each sample's spacing is the mean distance to its `k` nearest neighbours
+(`SurfaceConfig.spacing_neighbours`), so a scan twice as dense in one place as in another is judged alike in
+both. The other stages that measure in sample spacings (`stacked`, `sheet_holes`) take the same local spacing
+at the place tested (`spacing_at`), scaled by one factor so that its median over the samples is the samples'
+median nearest-neighbour distance: on uniform samples it is the global spacing those stages were set in. A point of a patch is *seen* when its
 nearest sample lies within `ratio` of that sample's spacings. A patch is *unseen*, a hole the input shows,
 when more than `share` of its area is not seen and it is larger than a disc of `ratio` spacings (a smaller
 hole is below what the sampling can show either way, and closing it keeps a closed shape closed).
@@ -25,6 +28,7 @@ class Evidence:
     tree: object
     spacing: np.ndarray  # (G,) float64, each sample's mean distance to its k nearest neighbours
     workers: int = 1
+    unit: float = 1.0    # median nearest-neighbour distance / median spacing (`spacing_at`'s scale)
 
     @classmethod
     def of_samples(cls, samples: np.ndarray, k: int, workers: int = 1) -> "Evidence":
@@ -35,7 +39,15 @@ class Evidence:
         tree = cKDTree(samples)
         k = max(1, min(int(k), len(samples) - 1))
         distance, _ = tree.query(samples, k + 1, workers=workers)
-        return cls(tree, distance[:, 1:].mean(1), workers)
+        spacing = distance[:, 1:].mean(1)
+        unit = float(np.median(distance[:, 1]) / max(float(np.median(spacing)), 1e-300))
+        return cls(tree, spacing, workers, unit)
+
+    def spacing_at(self, points: np.ndarray) -> np.ndarray:
+        """(P,) the local sample spacing at each point: its nearest sample's spacing x `unit`, in units of the
+        samples' median nearest-neighbour distance."""
+        _, nearest = self.tree.query(np.asarray(points, dtype=np.float64).reshape(-1, 3), workers=self.workers)
+        return self.spacing[nearest] * self.unit
 
     def ratio(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P,) distance of each point to its nearest sample in that sample's spacings, and (P,) that
@@ -74,8 +86,7 @@ def reopen(state, cfg):
     if state.mode == "open":
         out = np.ones(count, bool)
     else:
-        evidence = Evidence.of_samples(state.samples, cfg.neighbours, state.workers)
-        out = evidence.unseen_pieces(state.coords(), state.closed[ids], piece, count, cfg.ratio, cfg.share)
+        out = state.evidence().unseen_pieces(state.coords(), state.closed[ids], piece, count, cfg.ratio, cfg.share)
     keep = np.ones(len(state.closed) + len(state.sheet), bool)
     keep[ids[out[piece]]] = False
     state.info.update(holes_reopened=int(out.sum()), reopened_faces=int((~keep).sum()))

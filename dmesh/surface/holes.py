@@ -58,14 +58,12 @@ def tet_fills(state) -> np.ndarray:
     def key(e: np.ndarray) -> np.ndarray:
         return e[:, 0] * n + e[:, 1]
 
-    open_edges = set(key(edges[counts == 1]).tolist())
-    closed_edges = set(key(edges).tolist())
     count, piece = edge_pieces(faces)
     he = np.sort(half_edges(faces), axis=1)
     face = np.arange(len(he)) % len(faces)
     keys = key(he)
-    on_closed = np.fromiter((k in closed_edges for k in keys.tolist()), bool, len(keys))
-    on_hole = np.fromiter((k in open_edges for k in keys.tolist()), bool, len(keys))
+    on_closed = np.isin(keys, key(edges))
+    on_hole = np.isin(keys, key(edges[counts == 1]))
     rim = np.bincount(piece[face[on_closed]], minlength=count)
     fits = np.bincount(piece[face[on_closed & on_hole]], minlength=count)
     return faces[((rim > 0) & (fits == rim))[piece]]
@@ -83,7 +81,7 @@ def sheet_holes(state, cfg):
     if loops and state.samples is not None and cfg.gap > 0:
         # A hole the input did not sample across is one of the shape (a coarse mesh rims it with a few long
         # edges), not one the extraction left in a sampled surface.
-        sampled = sampled_loops(points, loops, state.samples, cfg.gap, cfg.spacing_samples)
+        sampled = sampled_loops(points, loops, state.evidence(), cfg.gap)
         info["sheet_holes_unsampled"] = int((~sampled).sum())
         loops = [loop for loop, keep in zip(loops, sampled) if keep]
     fill, filled = state.sheet[:0], 0
@@ -199,36 +197,18 @@ def fill_holes(vertices: np.ndarray, faces: np.ndarray, max_edges: int, uncrosse
     return fill, len(fills), len(every) - len(fills), crossing
 
 
-def sampled_loops(vertices: np.ndarray, loops: list, samples: np.ndarray, gap: float,
-                  spacing_samples: int = SheetHoles.spacing_samples) -> np.ndarray:
+def sampled_loops(vertices: np.ndarray, loops: list, evidence, gap: float) -> np.ndarray:
     """(len(loops),) bool: which hole loops the input sampled across: the centre of a loop (its vertices'
-    mean) lies within `gap` times the samples' spacing (the median distance from a sample to its nearest
-    other sample, over at most `spacing_samples` of them) of a sample. A loop whose centre is farther from
+    mean) lies within `gap` local sample spacings (`evidence`: `dmesh.surface.evidence.Evidence` of the
+    samples; the spacing at the nearest sample, `spacing_at`) of a sample. A loop whose centre is farther from
     every sample surrounds a hole in the input: a hole of the shape, which a coarse mesh rims with a few long
     edges, not a gap the extraction left in a sampled surface."""
-    from scipy.spatial import cKDTree
-
-    s = np.asarray(samples, dtype=np.float64).reshape(-1, 3)
-    if not len(loops) or len(s) < 2:
+    if not len(loops) or len(evidence.spacing) < 2:
         return np.ones(len(loops), bool)
-    tree = cKDTree(s)
-    spacing = sample_spacing(s, tree, spacing_samples)
     v = np.asarray(vertices, dtype=np.float64)
     centres = np.array([v[loop].mean(0) for loop in loops])
-    return tree.query(centres)[0] <= gap * spacing
-
-
-def sample_spacing(samples: np.ndarray, tree=None, count: int = SheetHoles.spacing_samples) -> float:
-    """The samples' spacing: the median distance from a sample to its nearest other sample, over at most
-    `count` of them (an even subset). `tree`: a cKDTree of `samples`, if one is built already."""
-    from scipy.spatial import cKDTree
-
-    s = np.asarray(samples, dtype=np.float64).reshape(-1, 3)
-    if len(s) < 2:
-        return float("inf")
-    tree = cKDTree(s) if tree is None else tree
-    probe = s[:: max(1, len(s) // count)]
-    return float(np.median(tree.query(probe, k=2)[0][:, 1]))
+    distance = evidence.tree.query(centres, workers=evidence.workers)[0]
+    return distance <= gap * evidence.spacing_at(centres)
 
 
 def sheet_hole_loops(vertices: np.ndarray, faces: np.ndarray, max_edges: int,
@@ -307,5 +287,5 @@ def _stray_vertices(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, off
     return set(at[(variation < SURFACE_VARIATION) & (off > off_ratio * dist.mean(1))].tolist())
 
 
-__all__ = ["lids", "fills", "sheet_holes", "fill_loop", "fill_holes", "sampled_loops", "sample_spacing",
+__all__ = ["lids", "fills", "sheet_holes", "fill_loop", "fill_holes", "sampled_loops",
            "sheet_hole_loops"]

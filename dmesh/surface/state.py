@@ -26,7 +26,7 @@ class SurfaceState:
         pd: the `dmesh.wdt.PowerDiagram`; walls: (F,) bool over `pd.faces`, the mesh faces given.
         normals: None, or (points (G, 3), normals (G, 3)) float64 oriented input samples in the frame of `pd`.
         samples: None, or (G, 3) float input points in that frame.
-        seed, workers, mode: `SurfaceConfig`'s run-wide fields.
+        seed, workers, mode, spacing_neighbours: `SurfaceConfig`'s run-wide fields.
         inside: (T,) bool tet labels (the vote, revote and pinches stages); between: (F,) bool, the faces
             between an inside and an outside tet (closed_part); dirs, sign, vote: the vote's walk directions,
             wall signs and settings, which the revote repeats.
@@ -50,6 +50,7 @@ class SurfaceState:
     seed: int = 0
     workers: int = 1
     mode: str = "auto"
+    spacing_neighbours: int = 8
     inside: np.ndarray | None = None
     between: np.ndarray | None = None
     dirs: np.ndarray | None = None
@@ -66,6 +67,7 @@ class SurfaceState:
     info: dict = field(default_factory=dict)
     added: int = 0
     dropped: int = 0
+    _evidence: object = None
 
     def __post_init__(self):
         if self.vertices is None:
@@ -75,6 +77,15 @@ class SurfaceState:
     def points(self) -> np.ndarray:
         """(N, 3) float64 the triangulation's points."""
         return self.pd.points
+
+    def evidence(self):
+        """The `dmesh.surface.evidence.Evidence` of `samples` (local sample spacings), built once per run and
+        shared by the stages that measure in sample spacings; None without samples."""
+        if self._evidence is None and self.samples is not None:
+            from dmesh.surface.evidence import Evidence
+
+            self._evidence = Evidence.of_samples(self.samples, self.spacing_neighbours, self.workers)
+        return self._evidence
 
     def coords(self) -> np.ndarray:
         """(V, 3) float64 where the vertices lie."""

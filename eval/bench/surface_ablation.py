@@ -73,7 +73,7 @@ def _figures(mesh, gt, n: int, seed: int) -> dict:
 
 #: Input variants: the clean cloud (Table 2's) and the noise-free 6-camera scan of the robustness sweeps
 #: (`eval/sweeps/robustness.yaml`: occlusion holes and unseen stretches, where lids, spans and fairing act).
-INPUTS = {"clean": {}, "scan": {"scan": 6}}
+INPUTS = {"clean": {}, "scan": {"corruption": {"scan": 6}}}
 
 
 def _state(shape: str, seed: int, work: Path, n_points: int, variant: dict | None = None):
