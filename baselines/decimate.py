@@ -2,13 +2,13 @@
 
 Shape letters: N input points, F output faces.
 
-`psr_qem` runs `psr`, `bpa_qem` runs `bpa` and `sdf_mc_qem` runs `sdf_mc` (each with its own config keys and defaults), then reduce the
-mesh to `faces` faces with MeshLab's quadric edge collapse (Garland and Heckbert 1997; pymeshlab
-`meshing_decimation_quadric_edge_collapse`) at MeshLab's defaults: quality threshold 0.3, optimal vertex
-placement, boundaries not locked (boundary weight 1), normals and topology not preserved, no planar quadric,
-auto-clean. This is the usual way to get a compact mesh from a classical reconstruction, so a matched-budget
-table compares a compact DMesh mesh with it at the same face count (rows `psr_qem [faces=5000]`). `gt_qem`
-reduces the GT itself the same way: the table's floor.
+`psr_qem` runs `psr`, `bpa_qem` runs `bpa` and `sdf_mc_qem` runs `sdf_mc` (each with its own config keys and
+defaults), then reduce the mesh to `faces` faces with MeshLab's quadric edge collapse (Garland and Heckbert
+1997; pymeshlab `meshing_decimation_quadric_edge_collapse`) at MeshLab's defaults: quality threshold 0.3,
+optimal vertex placement, boundaries not locked (boundary weight 1), normals and topology not preserved, no
+planar quadric, auto-clean. This is the usual way to get a compact mesh from a classical reconstruction, so a
+matched-budget table compares a compact DMesh mesh with it at the same face count (rows `psr_qem
+[faces=5000]`). `gt_qem` reduces the GT itself the same way: the table's floor.
 """
 from __future__ import annotations
 

@@ -175,29 +175,39 @@ def test_budget_reduces_a_mesh_to_its_face_count_and_leaves_a_smaller_one():
     assert same is mesh and info["short"]
 
 
-def test_compact_preset_seeds_for_its_budget_and_rejects_bad_ones():
-    cfg = PointCloudConfig.compact()
+def test_compact_presets_take_their_budget_and_reject_bad_ones():
+    """`compact` is the fast preset with a budget (chosen on the dev split); `compact_steps` seeds for the budget
+    and takes gradient steps."""
+    assert PointCloudConfig.compact() == PointCloudConfig.fast(faces=COMPACT_FACES)
+    assert PointCloudConfig.compact(faces=2000) == PointCloudConfig.fast(faces=2000)
+    cfg = PointCloudConfig.compact_steps()
     assert cfg.faces == COMPACT_FACES and cfg.num_init == round(COMPACT_FACES * COMPACT_SEEDS_PER_FACE)
     assert cfg.steps_phase1 > 0 and cfg.coverage and cfg.best_every > 0 and cfg.collapse_share > 0
-    assert PointCloudConfig.compact(faces=2000).num_init == round(2000 * COMPACT_SEEDS_PER_FACE)
-    assert PointCloudConfig.compact(faces=2000, num_init=900).num_init == 900
+    assert PointCloudConfig.compact_steps(faces=2000).num_init == round(2000 * COMPACT_SEEDS_PER_FACE)
+    assert PointCloudConfig.compact_steps(faces=2000, num_init=900).num_init == 900
+    assert PointCloudConfig.from_preset("compact", {"faces": 300}).faces == 300
     for bad in (2, -5):
-        with pytest.raises(ValueError, match="faces"):
-            PointCloudConfig.compact(faces=bad)
+        for preset in ("compact", "compact_steps"):
+            with pytest.raises(ValueError, match="faces"):
+                PointCloudConfig.preset(preset, faces=bad)
     with pytest.raises(ValueError, match="collapse_share"):
         PointCloudConfig(collapse_share=1.0)
     with pytest.raises(ValueError, match="normals"):
-        reconstruct(*_sphere_cloud(500)[:1], config=PointCloudConfig.compact(faces=100))
+        reconstruct(*_sphere_cloud(500)[:1], config=PointCloudConfig.compact_steps(faces=100))
 
 
-def test_compact_reconstruction_meets_its_budget():
-    """A small budget on a sphere: the mesh has the budget's faces within 10 %, and is closed."""
+@pytest.mark.parametrize("preset", ["compact", "compact_steps"])
+def test_compact_reconstruction_meets_its_budget(preset):
+    """A small budget on a sphere: the mesh has the budget's faces within 10 %, reduced from more, and lies on
+    the sphere (radius 1) within a few hundredths."""
     pts, nrm = _sphere_cloud(8000)
-    res = reconstruct(pts, nrm, PointCloudConfig.compact(faces=600, steps_phase1=20, num_target=4000,
-                                                         num_samples=4000))
+    small = dict(steps_phase1=20, num_target=4000, num_samples=4000) if preset == "compact_steps" else {}
+    res = reconstruct(pts, nrm, PointCloudConfig.preset(preset, faces=600, **small))
     assert abs(len(res.mesh.faces) - 600) <= 60, res.info["budget"]
-    assert res.info["budget"]["faces_before"] >= len(res.mesh.faces)
-    assert "best_state" in res.info and res.timings["budget"] >= 0
+    assert res.info["budget"]["faces_before"] > len(res.mesh.faces) and res.timings["budget"] >= 0
+    radius = np.linalg.norm(res.mesh.triangles_center, axis=1)
+    assert np.abs(radius - 1).max() < 0.05
+    assert ("best_state" in res.info) == (preset == "compact_steps")
 
 
 @pytest.mark.slow

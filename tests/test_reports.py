@@ -519,8 +519,8 @@ def test_compact_report_ratios_against_the_best_classical_row_and_stays_out_of_t
     from eval.reports.compact import budget_of, compact_rows, ratio_rows
 
     path = tmp_path / "s.sqlite"
-    runs = [("d0", "dmesh", "faces=5000,preset=compact", "torus", 1e-3, 0), ("d1", "dmesh", "faces=5000,preset=compact",
-            "torus", 3e-3, 1), ("p0", "psr_qem", "faces=5000", "torus", 4e-3, 0), ("p1", "psr_qem", "faces=5000",
+    runs = [("d0", "dmesh", "faces=5000,preset=compact_steps", "torus", 1e-3, 0),
+            ("d1", "dmesh", "faces=5000,preset=compact_steps", "torus", 3e-3, 1), ("p0", "psr_qem", "faces=5000", "torus", 4e-3, 0), ("p1", "psr_qem", "faces=5000",
             "torus", 4e-3, 1), ("b0", "bpa_qem", "faces=5000", "torus", 5e-3, 0),
             ("g0", "gt_qem", "faces=5000", "torus", 0.1e-3, 0), ("f0", "psr", "", "torus", 0.2e-3, 0)]
     with Store(path) as s:
@@ -531,7 +531,7 @@ def test_compact_report_ratios_against_the_best_classical_row_and_stays_out_of_t
             r.update(config_label=label)
             s.upsert(r)
         df = s.dataframe()
-    assert budget_of("faces=5000,preset=compact") == 5000 and budget_of("preset=paper") is None
+    assert budget_of("faces=5000,preset=compact_steps") == 5000 and budget_of("preset=paper") is None
     rows = compact_rows(df)
     assert [r["key"] for r in rows] == ["dmesh", "bpa_qem", "psr_qem", "gt_qem"]
     assert rows[0]["n"] == 2 and rows[0]["cd_p2s"] == pytest.approx(2e-3) and rows[0]["watertight"] == 2
@@ -543,6 +543,6 @@ def test_compact_report_ratios_against_the_best_classical_row_and_stays_out_of_t
     assert [r["method"] for r in table2] == ["psr"]
     assert not list(csv.DictReader(open(tmp_path / "rep" / "table1.csv")))
     text = (tmp_path / "rep" / "compact.md").read_text()
-    assert ("| dev | closed | 5000 | dmesh [compact: 200 gradient steps; faces=5000] | 2 | 2.00 | psr_qem [faces=5000] "
+    assert ("| dev | closed | 5000 | dmesh [compact_steps: 200 gradient steps; faces=5000] | 2 | 2.00 | psr_qem [faces=5000] "
             "| 4.00 | 0.50 | 0.100 |") in text, text
     assert (tmp_path / "rep" / "figures" / "compact.png").is_file()

@@ -23,7 +23,8 @@ SHORT = 0.9
 
 def reduce_to_budget(mesh, faces: int):
     """(mesh, info): `mesh` (trimesh.Trimesh) reduced to about `faces` faces when it has more, else unchanged;
-    info {"faces_before", "faces", "seconds", "cpu_seconds", "short"} ("short": True when the mesh has under 0.9 x the budget).
+    info {"faces_before", "faces", "seconds", "cpu_seconds", "short"} ("short": True when the mesh has under
+    0.9 x the budget).
     """
     import trimesh
 

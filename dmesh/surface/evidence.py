@@ -9,10 +9,11 @@ Lengths here are local: each sample's spacing is the mean distance to its `k` ne
 (`SurfaceConfig.spacing_neighbours`), so a scan twice as dense in one place as in another is judged alike in
 both. The other stages that measure in sample spacings (`stacked`, `sheet_holes`) take the same local spacing
 at the place tested (`spacing_at`), scaled by one factor so that its median over the samples is the samples'
-median nearest-neighbour distance: on uniform samples it is the global spacing those stages were set in. A point of a patch is *seen* when its
-nearest sample lies within `ratio` of that sample's spacings. A patch is *unseen*, a hole the input shows,
-when more than `share` of its area is not seen and it is larger than a disc of `ratio` spacings (a smaller
-hole is below what the sampling can show either way, and closing it keeps a closed shape closed).
+median nearest-neighbour distance: on uniform samples it is the global spacing those stages were set in. A
+point of a patch is *seen* when its nearest sample lies within `ratio` of that sample's spacings. A patch is
+*unseen*, a hole the input shows, when more than `share` of its area is not seen and it is larger than a disc
+of `ratio` spacings (a smaller hole is below what the sampling can show either way, and closing it keeps a
+closed shape closed).
 """
 from __future__ import annotations
 
