@@ -20,11 +20,11 @@ The stages, in the order they run (`STAGES`; each has its section of `SurfaceCon
 12. stacked: small sheet pieces lying on a larger surface (stray copies) are dropped.
 13. wind_sheets: each sheet is wound consistently and turned to its input normals.
 14. sheet_holes: small inner holes of the sheets are filled where the input sampled across them.
-15. split_fans: each vertex where sheets meet gets one copy per fan of faces.
-16. folds: on an edge that still has more than two faces, the two largest stay.
-17. closed_crumbs: tiny closed pieces beside a larger one are dropped.
-18. copies: the copies of a split vertex move apart into their own faces.
-19. fair: the lids and spans are refined and faired; a lid piece that then crosses a face is dropped.
+15. split_fans: each vertex where sheets meet gets one copy per fan of faces; on an edge that still has more
+    than two faces, the two largest stay.
+16. closed_crumbs: tiny closed pieces beside a larger one are dropped.
+17. copies: the copies of a split vertex move apart into their own faces.
+18. fair: the lids and spans are refined and faired; a lid piece that then crosses a face is dropped.
 
 With `SurfaceConfig.clean` False only the orientation runs (stages 1-4 and 13); `SurfaceConfig.skip` leaves out
 stages that are not required.
@@ -83,7 +83,6 @@ STAGES = (
     _stage(winding.wind_sheets, cleanup=False),
     _stage(holes.sheet_holes),
     _stage(finish.split_fans),
-    _stage(finish.folds),
     _stage(debris.closed_crumbs),
     _stage(finish.copies),
     _stage(finish.fair),

@@ -255,7 +255,7 @@ class Fair:
 #: The stages of the surface step in the order they run, and those that may not be skipped (`skip`).
 #: `dmesh.surface.STAGES` pairs each name with its function (and checks the order) at import.
 STAGE_NAMES = ("vote", "revote", "pinches", "closed_part", "lids", "fills", "spans", "reopen", "fins", "crumbs", "rim",
-               "stacked", "wind_sheets", "sheet_holes", "split_fans", "folds", "closed_crumbs", "copies", "fair")
+               "stacked", "wind_sheets", "sheet_holes", "split_fans", "closed_crumbs", "copies", "fair")
 REQUIRED = ("vote", "closed_part", "rim", "wind_sheets")
 #: `SurfaceConfig.mode`'s values: which holes the surface step closes.
 MODES = ("auto", "closed", "open")

@@ -1,4 +1,4 @@
-"""Stages that finish the surface: split_fans (a copy of a vertex per fan of faces), folds (two faces at most on an
+"""Stages that finish the surface: split_fans (a copy of a vertex per fan of faces, then two faces at most on an
 edge), copies (split copies moved apart) and fair (lids and spans refined and faired); and `keep_flattest`, the
 pair rule mesh to DMesh uses where sheets meet.
 
@@ -21,7 +21,10 @@ log = logging.getLogger(__name__)
 def split_fans(state, cfg):
     """Every vertex where sheets meet at an edge or a point gets one copy per fan of faces, so no edge has more
     than two faces; a sheet's seam edges where a stacked piece hung stay apart (`seams_cut`). Copies left on one
-    point would make the branch or pinch again in any file read back with its vertices merged by position."""
+    point would make the branch or pinch again in any file read back with its vertices merged by position. On an
+    edge that still has more than two faces after the split (a sheet folded onto itself), the two largest stay
+    (`folds_dropped`: this was a stage of its own, `folds`, which changed no output on the dev split's clean
+    and scanned inputs; it stays as this stage's guarantee)."""
     seams = seam_edges(state.sheet)
     cut = seams[edges_in(seams, state.hung)]
     n = len(state.closed)
@@ -29,11 +32,6 @@ def split_fans(state, cfg):
     state.closed, state.sheet = faces[:n], faces[n:]
     state.vertices = state.vertices[source]
     state.info.update(seams_cut=int(len(cut)), split_vertices=int(len(state.vertices) - len(state.points)))
-    return state
-
-
-def folds(state, cfg):
-    """On an edge that still has more than two faces (a sheet folded onto itself), the two largest stay."""
     keep = drop_crowding(state.coords(), state.faces())
     state.keep_faces(keep)
     state.info["folds_dropped"] = int((~keep).sum())
@@ -233,5 +231,5 @@ def keep_flattest(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return keep
 
 
-__all__ = ["split_fans", "folds", "copies", "fair", "separate_copies", "fair_patches", "drop_crowding",
+__all__ = ["split_fans", "copies", "fair", "separate_copies", "fair_patches", "drop_crowding",
            "keep_flattest"]
