@@ -6,8 +6,10 @@ one `-STAGE` variant per stage `STAGES` does not mark required, and the three mo
 (`mode=closed`, `mode=open`; `all` is `auto`).
 
 Protocol: point-cloud input as Table 2's (`eval/sweeps/paper.yaml` on the dev split, `test.yaml` on the test
-split: 100K samples with normals from the harness's input cache, `--work`), DMesh's `fast` preset as the harness
-runs it (no private filter), reconstructed once per shape and seed; the surface step then runs once per variant
+split: 100K samples with normals from the harness's input cache, `--work`), or with `--input scan` the
+robustness sweeps' noise-free 6-camera scan of the same shapes (occlusion holes and unseen stretches, where the
+hole-closing stages act; rows under split "dev scan"), DMesh's `fast` preset as the harness runs it (no private
+filter), reconstructed once per shape and seed; the surface step then runs once per variant
 on the same final triangulation. Figures per variant, in the GT frame (mean 0, max vertex norm 1): CD p2s x1e-3
 (`eval.metrics.chamfer_l1_p2s`, `--metric-samples` per side, 20K by default: a comparison of variants, not a
 table figure), boundary edges, boundary length (a count depends on the resolution; the length does not),
@@ -179,7 +181,9 @@ def write_report(rows: list[dict], out: Path) -> None:
              "Columns: `cd_p2s` the class mean (x1e-3); `cd_vs_all` the mean over runs of the variant's CD p2s over "
             "the `all` variant's on the same run, `worst_vs_all` the largest; `rim_vs_gt` boundary length over the "
             "GT's (shapes with a boundary); `watertight` counts runs. A stage pays where leaving it out makes "
-            "`cd_vs_all` > 1, the rim further from the GT's, or fewer runs watertight.")
+            "`cd_vs_all` > 1, the rim further from the GT's, or fewer runs watertight. A stage that no variant shows "
+            "paying on the dev split, clean or scanned, goes (issue 59): `folds` went this way (into `split_fans`), "
+            "so its rows are of the code before.")
     write(out, "bench_surface_ablation", "Surface step ablation", intro, table, summary(rows))
 
 
