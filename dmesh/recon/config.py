@@ -302,8 +302,8 @@ class PointCloudConfig(Presets):
         """A mesh of `faces` faces (default 5000), for users who need a light mesh (not upstream): the `fast`
         preset (no gradient step), then the budget stage reduces its mesh to `faces` by quadric edge collapse
         (`dmesh.recon.budget`), as the classical reconstruct-then-decimate rows do. Chosen on the dev split over
-        `compact_steps` (gradient steps from a start seeded for the budget), which it beats by 3-4x at 5K faces
-        (reports/compact.md; docs/presets.md, "compact")."""
+        `compact_steps` (gradient steps from a start seeded for the budget), which it beats by 3-4x at 5K faces on
+        the dev shapes both ran (reports/compact.md; docs/presets.md, "compact")."""
         faces = int(overrides.pop("faces", COMPACT_FACES))
         if faces < 4:
             raise ValueError(f"PointCloudConfig.faces must be at least 4 for the compact preset, got {faces}")
