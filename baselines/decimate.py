@@ -96,8 +96,8 @@ class Decimated(Method):
 class DecimatedGT(Method):
     """The GT itself reduced by the same quadric edge collapse to `faces` faces: the floor of a matched-budget
     table, what the field's decimation makes of the exact surface. A reference rather than a bound: reducing a
-    2M-face GT 400x can lose thin parts, where a reconstruction reduced from 200K faces does better (measured on
-    the test split's bracket and bracket_hose). Input kind "mesh": `inputs.mesh` is the
+    2M-face GT 400x can lose thin parts, where a reconstruction reduced from 200K faces does better
+    (reports/compact.md). Input kind "mesh": `inputs.mesh` is the
     normalised GT (`eval.inputs.load_inputs`); a GT with no more faces than the budget is returned as it is."""
 
     name = "gt_qem"

@@ -302,8 +302,7 @@ class PointCloudConfig(Presets):
         """A mesh of `faces` faces (default 5000), for users who need a light mesh (not upstream): the `fast`
         preset (no gradient step), then the budget stage reduces its mesh to `faces` by quadric edge collapse
         (`dmesh.recon.budget`), as the classical reconstruct-then-decimate rows do. Chosen on the dev split over
-        `compact_steps` (gradient steps from a start seeded for the budget), which it beats by 3-4x at 5K faces on
-        the dev shapes both ran (reports/compact.md; docs/presets.md, "compact")."""
+        `compact_steps`: why and the figures, docs/presets.md, "compact" (reports/compact.md)."""
         faces = int(overrides.pop("faces", COMPACT_FACES))
         if faces < 4:
             raise ValueError(f"PointCloudConfig.faces must be at least 4 for the compact preset, got {faces}")
@@ -317,8 +316,8 @@ class PointCloudConfig(Presets):
         floor) and the mass beyond each target row's candidates charged (`coverage`), the best state kept by its
         Chamfer distance to the input (`best_every` 10), the phase stopped if its mesh falls below a quarter of
         its first faces (`collapse_share`); then the surface step, and the budget stage reduces the mesh to
-        `faces` by quadric edge collapse. On the dev split `compact` (no step, the fast mesh reduced) is 3-4x
-        more accurate at 5K faces; this one stays for that comparison. Why: docs/presets.md."""
+        `faces` by quadric edge collapse. `compact` was chosen over it on the dev split; it stays for that
+        comparison (docs/presets.md, reports/compact.md)."""
         faces = int(overrides.get("faces", COMPACT_FACES))
         if faces < 4:
             raise ValueError(f"PointCloudConfig.faces must be at least 4 for the compact_steps preset, got {faces}")

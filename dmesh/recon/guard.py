@@ -4,10 +4,8 @@ mesh collapses.
 Letters: G target points, N DMesh points, F mesh faces, S uniform samples on the mesh.
 
 Why: the expected Chamfer loss is a figure of the probabilistic surface, and the mesh a user gets is the set of
-faces whose three real values exceed the threshold. The two can part: with the tangential part of the offsets
-scaled down (`tangent_weight` 0.2), 200 steps from 2500 seeds took suzanne's mesh from 6976 faces to 0 while
-the loss kept falling (an empty mesh's loss is 0 by definition, and the paper's loss drops the probability
-mass beyond each row's candidates). So the mesh itself is scored against the input every `best_every` steps:
+faces whose three real values exceed the threshold. The two can part: the mesh can empty while the loss keeps
+falling (an empty mesh's loss is 0 by definition; docs/presets.md, `compact_steps`, has the case). So the mesh itself is scored against the input every `best_every` steps:
 the Chamfer L1 distance between the Chamfer target and S area-uniform samples of the mesh's faces
 (`input_chamfer`; no GT is used, only the input). The state of the best score is kept and phase 2 starts from
 it; and a phase-1 mesh that falls below `collapse_share` of its faces at the first step ends the phase there.

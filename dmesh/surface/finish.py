@@ -23,8 +23,7 @@ def split_fans(state, cfg):
     than two faces; a sheet's seam edges where a stacked piece hung stay apart (`seams_cut`). Copies left on one
     point would make the branch or pinch again in any file read back with its vertices merged by position. On an
     edge that still has more than two faces after the split (a sheet folded onto itself), the two largest stay
-    (`folds_dropped`: this was a stage of its own, `folds`, which changed no output on the dev split's clean
-    and scanned inputs; it stays as this stage's guarantee)."""
+    (`folds_dropped`), a guarantee of this stage rather than a stage of its own (docs/surface.md)."""
     seams = seam_edges(state.sheet)
     cut = seams[edges_in(seams, state.hung)]
     n = len(state.closed)
