@@ -10,21 +10,25 @@ Settings and their sources (docs/protocol.md, "Baselines", has the dev-split mea
 - `full_depth` 5, `scale` 1.1, `samples_per_node` 1.5, `point_weight` 4, `iters` 8: MeshLab's / pymeshlab's
   filter defaults (`filter_screened_poisson.cpp`), the values Points2Surf's `poisson.mlx` runs;
   samplesPerNode 1.5 is PoissonRecon's advice for noise-free samples (README: [1, 5] clean, [15, 20] noisy).
-- Trimming as PoissonRecon's SurfaceTrimmer does it (`trim_depth_offset` 3, `trim_smooth` 5,
+- Trimming as PoissonRecon's SurfaceTrimmer does it (`trim_depth_offset` 2, `trim_smooth` 5,
   `island_area_ratio` 0.001). pymeshlab leaves PoissonRecon's `--density` output as the per-vertex quality:
   MeshLab's plugin sets `DensityFlag = true` and copies each iso-vertex's value into `Q()`
   (`poisson_utils.h`), the estimated octree depth of the local sampling (PoissonRecon issue #246: "the depth
-  to which the point would be assigned given the local sampling density"). The trim value is depth - 3, the
-  pair both public defaults use: PoissonRecon's README (depth 10, `--trim 7`) and COLMAP's `poisson_mesher`
-  (depth 13, trim 10). As SurfaceTrimmer (V5): the values are smoothed 5 times over the mesh (`--smooth 5`),
-  every face is cut along the trim level set (vertices interpolated on the crossing edges), and pieces that
-  touch the cut and hold less than 0.001 of the total area (`--aRatio 0.001`) change side: small kept
-  islands go, small trimmed holes come back. One setting for closed, open and mixed shapes; on closed,
-  well-sampled shapes the density stays above depth - 3 and nothing is cut (measured, docs/protocol.md).
+  to which the point would be assigned given the local sampling density"). The trim value is depth - 2,
+  chosen on the dev split (`python -m studies psr_trim`, studies/reports/psr_trim.md: open class 0.105e-3 at
+  depth - 2 against 0.248e-3 at depth - 3, mixed 0.329 against 0.543, no closed dev shape cut at any level
+  from depth - 3 to depth - 1). The public defaults are depth - 3: PoissonRecon's README (depth 10,
+  `--trim 7`) and COLMAP's `poisson_mesher` (depth 13, trim 10); row `psr [trim_depth_offset=3.0]` in a sweep
+  gives them. As SurfaceTrimmer (V5): the values
+  are smoothed 5 times over the mesh (`--smooth 5`), every face is cut along the trim level set (vertices
+  interpolated on the crossing edges), and pieces that touch the cut and hold less than 0.001 of the total
+  area (`--aRatio 0.001`) change side: small kept islands go, small trimmed holes come back. One setting for
+  closed, open and mixed shapes; on closed, well-sampled shapes the density stays above the trim value and
+  nothing is cut (measured, docs/protocol.md).
 - The trim value is at most the median density - 0.7 (`trim_median_margin`): the density follows the
-  sampling, not the depth asked for, so on a sparse cloud depth - 3 would lie above every vertex and remove
-  the whole surface. 0.7 is where depth 10 / trim 7 sits on the dev torus at 100K points, so the cap is idle
-  there (measurement: docs/protocol.md, "Sparse inputs").
+  sampling, not the depth asked for, so on a sparse cloud depth - 2 would lie above every vertex and remove
+  the whole surface. 0.7 is where depth 10 / trim 7 sits on the dev torus at 100K points; at depth - 2 the
+  cap decides the trim value wherever the median density is below 8.7 (measurement: docs/protocol.md, "Sparse inputs").
 - `threads` 1: the harness's thread budget (OpenMP spin-waits make 2 much slower on a busy 2-core box).
 
 The `paper` preset (`{preset: paper}` in a sweep, row `psr [preset=paper]`) is the setting of the tables
@@ -61,8 +65,8 @@ class ScreenedPoisson(Method):
             "samples_per_node": 1.5,  # minimum samples per node (PoissonRecon README: 1-5 for clean samples)
             "point_weight": 4.0,    # screening weight (MeshLab default; PoissonRecon's own is 2 at degree 1)
             "iters": 8,             # Gauss-Seidel iterations per level (MeshLab and PoissonRecon default)
-            "trim_depth_offset": 3.0,  # trim value = depth - this (PoissonRecon README 10/7, COLMAP 13/10);
-                                       # None: no density trimming
+            "trim_depth_offset": 2.0,  # trim value = depth - this; chosen on dev (docstring; PoissonRecon
+                                       # README 10/7 and COLMAP 13/10 use 3); None: no density trimming
             "trim_median_margin": 0.7,  # the trim value at most this far below the median density (sparse
                                         # inputs; None: no cap); docstring
             "trim_smooth": 5,       # smoothing passes over the densities before the cut (SurfaceTrimmer --smooth)

@@ -165,7 +165,7 @@ def test_psr_trimming_keeps_a_closed_sphere_whole(sphere):
 def test_psr_presets_and_their_labels():
     psr = get_method("psr")
     d = psr.resolve_config({})
-    assert d["depth"] == 10 and d["trim_depth_offset"] == 3.0 and d["island_area_ratio"] == 0.001
+    assert d["depth"] == 10 and d["trim_depth_offset"] == 2.0 and d["island_area_ratio"] == 0.001
     paper = psr.resolve_config({"preset": "paper"})
     assert paper["depth"] == 8 and paper["trim_depth_offset"] is None and paper["trim_quantile"] == 0.0
     assert psr.resolve_config({"preset": "paper", "depth": 9})["depth"] == 9   # overrides after the preset
