@@ -36,7 +36,7 @@ def add_arguments(p):
     names = POINTCLOUD_PRESETS + tuple(n for n in MULTIVIEW_PRESETS if n not in POINTCLOUD_PRESETS)
     p.add_argument("--preset", choices=names, default=DEFAULT_PRESET,
                    help="settings preset (default: fast; noisy: point clouds only, for noisy scans; compact: point "
-                   "clouds only, a mesh of --faces faces, with gradient steps; depth and "
+                   "clouds only, the fast mesh reduced to --faces faces (no gradient step; compact_steps: with steps); depth and "
                    "refine: multiview only, DMesh's point-cloud fit to the lifted depth pixels, refine with "
                    "image-loss steps after it)")
     p.add_argument("--normals", action="store_true",
