@@ -637,7 +637,8 @@ def test_fast_does_not_take_a_small_intact_mesh_with_much_rim_for_shreds():
     """A clean cloud of suzanne at 500 seeds gives a mesh of about 900 faces with more than
     `FRAGMENTED_BOUNDARY` boundary edges per face (its eyes, ears and rims), yet few per root face (an intact
     surface's rim grows with the square root of its face count, shreds' boundary with the count): `fast` makes
-    it once, as the same preset without the redo makes it."""
+    it once, as the same preset without the redo makes it. (Without `thin_walls`: at 500 seeds the ears are
+    walls thinner than the seed spacing, and separating them leaves too little rim for the premise.)"""
     import trimesh
 
     from common import shared_mesh
@@ -646,12 +647,12 @@ def test_fast_does_not_take_a_small_intact_mesh_with_much_rim_for_shreds():
 
     gt, _ = normalize.normalize(trimesh.load(shared_mesh("mixed/suzanne.obj"), force="mesh"))
     pts, nrm = sampling.sample_points(gt, 20_000, seed=0)
-    res = reconstruct(pts, nrm, PointCloudConfig.fast(num_init=500))
+    res = reconstruct(pts, nrm, PointCloudConfig.fast(num_init=500, thin_walls=0.0))
     boundary, faces = res.info["surface"]["rim_edges"], res.info["surface"]["rim_faces"]
     assert boundary > FRAGMENTED_BOUNDARY * faces          # the per-face test alone would redo it
     assert boundary < 0.75 * FRAGMENTED_RIM * np.sqrt(faces)
     assert "fragmented_attempt" not in res.info and res.info["smooth_k"] == 0
-    once = reconstruct(pts, nrm, PointCloudConfig.fast(num_init=500, redo_fragmented=0.0))
+    once = reconstruct(pts, nrm, PointCloudConfig.fast(num_init=500, thin_walls=0.0, redo_fragmented=0.0))
     np.testing.assert_array_equal(res.mesh.faces, once.mesh.faces)
 
 

