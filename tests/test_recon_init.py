@@ -126,16 +126,23 @@ def test_thin_wall_points_lie_on_the_mid_surface_of_a_thin_plate_only():
 def test_separate_thin_walls_swaps_the_poles_beside_a_thin_wall_for_mid_surface_points():
     from dmesh.recon.init import separate_thin_walls
 
-    pts, nrm = _plate(3000, 0.01)
+    plate, plate_n = _plate(3000, 0.01)
+    # A thick part beside the plate: a surface 0.038 above its top, facing up (no wall: nothing opposite).
+    above = np.c_[np.random.default_rng(4).uniform(0, 1, (3000, 2)), np.full(3000, 0.048)]
+    pts, nrm = np.concatenate([plate, above]), np.concatenate([plate_n, np.tile([0.0, 0.0, 1.0], (3000, 1))])
     far = np.array([[0.5, 0.5, 2.0], [0.5, 0.5, -2.0]])
-    near = np.array([[0.5, 0.5, 0.004]])
-    positions = np.concatenate([pts, far, near])
-    reals = np.r_[np.ones(len(pts)), np.zeros(3)]
+    near = np.array([[0.5, 0.5, 0.004]])        # in the wall: its nearest seed is on it
+    beside = np.array([[0.5, 0.5, 0.045]])      # as near the wall's mid-surface, but the thick part's pole
+    positions = np.concatenate([pts, far, near, beside])
+    reals = np.r_[np.ones(len(pts)), np.zeros(4)]
     out, out_reals, counts = separate_thin_walls(positions, reals, pts, nrm, 3.0)
-    assert counts["poles_dropped"] == 1 and counts["thin_wall_points"] > 0.9 * len(pts)
+    assert counts["poles_dropped"] == 1 and 0.9 * len(plate) < counts["thin_wall_points"] <= len(plate)
     assert np.array_equal(out[: len(pts)], pts) and (out_reals[: len(pts)] == 1).all()  # seeds kept, first
-    assert (out_reals[len(pts):] == 0).all() and len(out) == len(pts) + 2 + counts["thin_wall_points"]
-    assert any(np.allclose(p, q) for p in out for q in far[:1]) and not any(np.allclose(p, near[0]) for p in out)
+    assert (out_reals[len(pts):] == 0).all() and len(out) == len(pts) + 3 + counts["thin_wall_points"]
+    kept = lambda q: any(np.allclose(p, q) for p in out)  # noqa: E731
+    assert kept(far[0]) and kept(far[1]) and kept(beside[0]) and not kept(near[0])
+    # the mid-surface points lie halfway through the plate
+    assert np.allclose(out[len(pts) + 3:, 2], 0.005, atol=1e-9)
 
 
 def test_noise_ratio_with_normals_does_not_take_a_thin_wall_for_noise():

@@ -22,9 +22,7 @@ nearest neighbours include the other side's, the Voronoi cells are not long acro
 lie beside the samples rather than between the two sides and cut the surface triangles, while the faces
 across the wall stay. With oriented normals the two sides are told apart: `thin_wall_points` puts imaginary
 points on the mid-surface of every wall whose other side lies within a few spacings behind a sample, and
-`separate_thin_walls` uses them instead of the poles there. Measured on the test split's `thin_cup` (100K
-samples, fast preset, before the surface step closes anything): CD p2s 3.47e-3 -> 0.42e-3; no dev shape has
-such a wall except a few hundred samples of suzanne's ears.
+`separate_thin_walls` uses them instead of the poles there (docs/preset_choices.md, "Thin walls").
 """
 from __future__ import annotations
 
@@ -238,14 +236,19 @@ OPPOSITE_COSINE = -0.5
 #: ... deeper than this many seed spacings (flipped normals on one surface, as at a Moebius strip's seam, lie
 #: beside the sample, not behind it).
 MIN_WALL = 0.5
+#: Imaginary points (poles) within this many seed spacings of a thin wall's mid-surface point are dropped: the
+#: mid-surface points lie half a wall below the surface, so a pole a few spacings above it leaves the surface
+#: triangles no empty sphere. Chosen on thin_cup at generator seeds 1 and 2 (in no split; CD p2s x1e-3 at 3 /
+#: 5 / 8 / 16 spacings: 0.58 / 0.18 / 0.105 / 0.101 and 0.50 / 0.15 / 0.095 / 0.096): the smallest at the plateau.
+THIN_WALL_CLEARANCE = 8.0
 
 
-def thin_wall_points(seeds: np.ndarray, seed_normals: np.ndarray, max_gap: float, k: int = 16,
-                     workers: int = 1) -> np.ndarray:
-    """(W, 3) imaginary points on the mid-surface of thin walls: for each seed with a seed among its `k`
-    nearest whose normal is opposite (`OPPOSITE_COSINE`) and that lies behind it (against its normal) by
-    between `MIN_WALL` and `max_gap` median seed spacings, the point halfway to the nearest such depth along
-    its normal. Written with SciPy: the crust's libraries (CGAL's included) take no normals.
+def wall_gaps(seeds: np.ndarray, seed_normals: np.ndarray, max_gap: float, k: int = 16,
+              workers: int = 1) -> np.ndarray:
+    """(S,) float64: for each seed on a thin wall, the wall's thickness there, inf elsewhere. A seed is on a thin
+    wall when a seed among its `k` nearest has an opposite normal (`OPPOSITE_COSINE`) and lies behind it
+    (against its normal) by between `MIN_WALL` and `max_gap` median seed spacings; the thickness is the least
+    such depth. Written with SciPy: the crust's libraries (CGAL's included) take no normals.
 
     Args:
         seeds: (S, 3) float64 seed positions; seed_normals: (S, 3) unit outward normals.
@@ -256,22 +259,31 @@ def thin_wall_points(seeds: np.ndarray, seed_normals: np.ndarray, max_gap: float
     seeds = np.asarray(seeds, dtype=np.float64)
     nrm = np.asarray(seed_normals, dtype=np.float64)
     if len(seeds) < 2 or max_gap <= 0:
-        return np.zeros((0, 3))
+        return np.full(len(seeds), np.inf)
     dist, idx = cKDTree(seeds).query(seeds, min(k + 1, len(seeds)), workers=workers)
     spacing = float(np.median(dist[:, 1]))
     idx = idx[:, 1:]
     opposite = np.einsum("ij,ikj->ik", nrm, nrm[idx]) < OPPOSITE_COSINE
     depth = -np.einsum("ikj,ij->ik", seeds[idx] - seeds[:, None], nrm)
     depth = np.where(opposite & (depth > MIN_WALL * spacing) & (depth < max_gap * spacing), depth, np.inf)
-    gap = depth.min(1)
+    return depth.min(1)
+
+
+def thin_wall_points(seeds: np.ndarray, seed_normals: np.ndarray, max_gap: float, k: int = 16,
+                     workers: int = 1) -> np.ndarray:
+    """(W, 3) imaginary points on the mid-surface of thin walls (`wall_gaps`): each seed on one, moved half the
+    wall's thickness against its normal."""
+    gap = wall_gaps(seeds, seed_normals, max_gap, k, workers)
     thin = np.isfinite(gap)
-    return seeds[thin] - nrm[thin] * (0.5 * gap[thin])[:, None]
+    return np.asarray(seeds, dtype=np.float64)[thin] - np.asarray(seed_normals)[thin] * (0.5 * gap[thin])[:, None]
 
 
 def separate_thin_walls(positions: np.ndarray, reals: np.ndarray, points: np.ndarray, normals: np.ndarray,
-                        max_gap: float, workers: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
-    """The initial points with `thin_wall_points` added (imaginary) and the imaginary points within `max_gap`
-    median seed spacings of them dropped (the poles beside thin walls, module docstring).
+                        max_gap: float, clearance: float = THIN_WALL_CLEARANCE,
+                        workers: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The initial points with `thin_wall_points` added (imaginary), and without the imaginary points that lie
+    within `clearance` median seed spacings of those and whose nearest seed is on a thin wall (the poles of the
+    walls' seeds; those of the thick parts beside them stay; module docstring).
 
     Args:
         positions, reals: as `seeds_and_voronoi` returns them (seeds first); points, normals: (G, 3) the input
@@ -284,15 +296,20 @@ def separate_thin_walls(positions: np.ndarray, reals: np.ndarray, points: np.nda
     real = reals > 0.5
     seeds = positions[real]
     seed_normals = np.asarray(normals, dtype=np.float64)[cKDTree(points).query(seeds, workers=workers)[1]]
-    mid = thin_wall_points(seeds, seed_normals, max_gap, workers=workers)
-    if len(mid) == 0:
+    gap = wall_gaps(seeds, seed_normals, max_gap, workers=workers)
+    thin = np.isfinite(gap)
+    if not thin.any():
         return positions, reals, {"thin_wall_points": 0, "poles_dropped": 0}
+    mid = seeds[thin] - seed_normals[thin] * (0.5 * gap[thin])[:, None]
     spacing = float(np.median(cKDTree(seeds).query(seeds, 2, workers=workers)[0][:, 1]))
-    near = np.zeros(len(positions), bool)
-    near[~real] = cKDTree(mid).query(positions[~real], workers=workers)[0] < max_gap * spacing
-    positions = np.concatenate([positions[~near], mid])
-    reals = np.r_[reals[~near], np.zeros(len(mid))]
-    return positions, reals, {"thin_wall_points": int(len(mid)), "poles_dropped": int(near.sum())}
+    others = positions[~real]
+    near = cKDTree(mid).query(others, workers=workers)[0] < clearance * spacing
+    near[near] = thin[cKDTree(seeds).query(others[near], workers=workers)[1]]
+    drop = np.zeros(len(positions), bool)
+    drop[~real] = near
+    positions = np.concatenate([positions[~drop], mid])
+    reals = np.r_[reals[~drop], np.zeros(len(mid))]
+    return positions, reals, {"thin_wall_points": int(len(mid)), "poles_dropped": int(drop.sum())}
 
 
 def poles(pd: wdt.PowerDiagram, n: int) -> np.ndarray:
