@@ -4,7 +4,7 @@
 Letters: N vertices, F faces, S samples per face, V views, H x H pixels.
 
 Why: the image-loss optimisation ends with its surface a little inside the object (each epoch re-seeds from
-the previous epoch's flat faces, and its steps do not undo the shrink; docs/preset_choices.md), so the
+the previous epoch's flat faces, and its steps do not undo the shrink; docs/preset_choices_multiview.md), so the
 extracted mesh's flat faces sit below the surface the depth maps saw. One linear least-squares solve moves
 every vertex along its normal so that the faces straddle that surface.
 

@@ -48,7 +48,7 @@ Procedure (paper appendix 9.2, Algorithm 2; upstream `3_mv_recon.py`):
    loss is the one extracted (upstream keeps its lowest-render-loss checkpoint, "min_eval_loss").
 6. With `depth_fit` (not upstream): the mesh's vertices move along their normals by one least-squares fit
    of its faces to the captured depth maps (`dmesh.recon.depth_fit`), which undoes the optimisation's
-   inward bias (docs/preset_choices.md). Topology and winding are unchanged; the copies the surface step
+   inward bias (docs/preset_choices_multiview.md). Topology and winding are unchanged; the copies the surface step
    made of one point move together (`copy_groups`).
 
 The extraction rules are `dmesh.extract.filtered_faces` ("apex" is its "no_interior" mode). The steps run

@@ -178,8 +178,8 @@ class MultiViewConfig(Presets):
         """The paper's procedure at a CPU budget: a 14^3 grid at lr 2e-3, re-seeds of 1000 and 3000 samples of
         the previous mesh's Phong-curved faces with all their Voronoi vertices, 150 + 20 steps per epoch of 6
         views optimised at 128 pixels, the "both" interior rule, the depth-consistency filter, `select_best` and
-        the final fit of the vertices to the depth maps (`depth_fit`). Why each choice: docs/preset_choices.md;
-        accuracy and time: reports/multiview_fast.md."""
+        the final fit of the vertices to the depth maps (`depth_fit`). Why each choice:
+        docs/preset_choices_multiview.md; accuracy and time: reports/multiview_fast.md."""
         base = dict(grid=14, refine_seeds=(1000, 3000), steps_phase1=(150, 150, 150), steps_phase2=(20, 20, 20),
                     lr_first=2e-3, bound_first=2e-3, max_real_first=6e-3, views_per_step=6, resolution=128,
                     reseed_phong=0.75,
@@ -194,7 +194,7 @@ class MultiViewConfig(Presets):
         multi-view extraction (the point-cloud extraction's one-sheet interior rule, which leaves open parts one
         sheet rather than the overlapping layers of thin tets the apex and visibility rules keep; the
         depth-consistency filter). No image-loss step
-        (docs/preset_choices.md)."""
+        (docs/preset_choices_depth.md)."""
         base = dict(init="depth", refine_seeds=(), steps_phase1=(0,), steps_phase2=(0,), interior="sheet",
                     depth_tolerance=0.02, select_best=False, save_every=10)
         return cls(**{**base, **overrides})

@@ -98,7 +98,7 @@ def write_mv_settings(df, out: str | Path) -> list[Path]:
           "as they are now (Table 2's rows) and TSDF fusion on the same shape (`eval/sweeps/multiview_fast.yaml`, "
           "`multiview_schedule.yaml`, `multiview_depth.yaml`). *settings*: the overrides on top of the `fast` "
           "preset, or of the preset they name. */ TSDF*: CD p2s over TSDF fusion's on that shape (the target of issue "
-          "[recipes] is at most 2 per class). Why each setting was chosen: `docs/preset_choices.md`. "
+          "[recipes] is at most 2 per class). Why each setting was chosen: `docs/preset_choices_multiview.md`. "
           f"{FRAME_NOTE} CD x1e-3; the CSV holds raw distances. Times are wall seconds on this machine, under "
           "whatever load the sweep ran beside.", "",
           markdown(rows, [("shape", "shape", None), ("category", "class", None), ("settings", "settings", None),
