@@ -350,7 +350,10 @@ class _Run:
         with self.clock("extract"):
             # With `orient`: the faces' closed, outward surface (dmesh.surface); input normals, when given, vote
             # inside/outside and turn the open sheets.
-            mesh = self.dm.extract_mesh(cfg.threshold, cfg.extraction, surface=cfg.surface if cfg.orient else None,
+            surface = cfg.surface
+            if surface is not None and _mostly_thin(info):  # a thin solid, not a pocket in a doubled sheet
+                surface = dataclasses.replace(surface, vote=dataclasses.replace(surface.vote, min_thickness=0.0))
+            mesh = self.dm.extract_mesh(cfg.threshold, cfg.extraction, surface=surface if cfg.orient else None,
                                         pd=pd, normals=None if self.nrm_in is None else (self.pts, self.nrm_in),
                                         samples=self.pts)
         if "surface" in mesh.metadata:
@@ -396,8 +399,8 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     result = _reconstruct_once(pts_in, nrm_in, cfg, callback, state_path, probe)
     # A mesh of walls thinner than the spacing has the rim of its shreds without noise: no redo when most seeds
     # lie on such walls (`thin_walls`; smoothing would merge the two sides of each wall into one).
-    thin = result.info.get("thin_wall_points", 0) > THIN_WALL_SHARE * result.info.get("real_seeds", 0)
-    if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0 and not thin:
+    if cfg.redo_fragmented > 0 and cfg.auto_smooth_k > 0 and result.info["smooth_k"] == 0 \
+            and not _mostly_thin(result.info):
         boundary, count = _rim(result)
         per_face = boundary / max(count, 1)
         if per_face > cfg.redo_fragmented and boundary > FRAGMENTED_RIM * np.sqrt(count):
@@ -422,8 +425,14 @@ def reconstruct(points, normals=None, config: PointCloudConfig | None = None,
     return result
 
 
-#: Share of the seeds on thin walls (`thin_wall_points`) above which a shredded first mesh is not redone smoothed.
+#: Share of the seeds on thin walls (`thin_wall_points`) above which a shredded first mesh is not redone smoothed
+#: and the surface step's vote keeps regions thinner than `vote.min_thickness` (the walls are a solid's).
 THIN_WALL_SHARE = 0.5
+
+
+def _mostly_thin(info: dict) -> bool:
+    """Whether most seeds of a run lie on walls thinner than the spacing (`separate_thin_walls`' count)."""
+    return info.get("thin_wall_points", 0) > THIN_WALL_SHARE * info.get("real_seeds", 0)
 
 
 def _rim(result: PointCloudResult) -> tuple[int, int]:

@@ -39,7 +39,7 @@ class Vote:
     max_open: float = 0.25       # a region of inside tets whose boundary is more than this fraction non-mesh faces
                                  # (by area) is an open part seen as a volume, not a solid
     min_thickness: float = 0.5   # ... and one thinner than this many mean edge lengths is a pocket in a sheet
-    sign_neighbours: int = 3     # input normals summed per mesh face to sign it (counts; winding vote)
+    sign_neighbours: int = 3     # input normals nearest each vertex of a mesh face, summed to sign it (winding vote)
 
     def __post_init__(self):
         _at_least(self, 1, "directions", "sign_neighbours")
