@@ -354,7 +354,7 @@ def wall_signs(pd, walls: np.ndarray, points: np.ndarray, normals: np.ndarray, k
 
     The normals are taken at the vertices, not at the centroid: on a wall thinner than the sample spacing the
     far side's samples can lie nearer a large face's centroid than its own corners do, and their normals point
-    the other way (measured on thin_cup: the winding vote then set 61 % of the cup's cavity inside).
+    the other way (docs/preset_choices.md, "Thin walls").
 
     Args:
         points, normals: (G, 3) float64 oriented input samples in the frame of `pd`.

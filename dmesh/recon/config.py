@@ -37,8 +37,7 @@ SMOOTHED_SEEDS = 20_000
 #: Boundary edges per face above which `fast` takes its unsmoothed output for a sign of missed noise ...
 FRAGMENTED_BOUNDARY = 0.1
 #: Walls up to this many seed spacings thick are separated by mid-surface points in the `fast` presets
-#: (`thin_walls`): 3 keeps the poles of every dev shape but suzanne's ears (a few hundred of 100K samples) and
-#: separates the test split's thin_cup (1.1 spacings).
+#: (`thin_walls`): the reach of a 16-neighbour neighbourhood (docs/preset_choices.md, "Thin walls").
 THIN_WALLS = 3.0
 #: ... when there are also more than this many times the square root of its face count. Shreds have boundary in
 #: proportion to their faces; an intact surface's rim grows with the square root of the face count, so a small

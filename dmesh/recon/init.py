@@ -236,10 +236,9 @@ OPPOSITE_COSINE = -0.5
 #: ... deeper than this many seed spacings (flipped normals on one surface, as at a Moebius strip's seam, lie
 #: beside the sample, not behind it).
 MIN_WALL = 0.5
-#: Imaginary points (poles) within this many seed spacings of a thin wall's mid-surface point are dropped: the
-#: mid-surface points lie half a wall below the surface, so a pole a few spacings above it leaves the surface
-#: triangles no empty sphere. Chosen on thin_cup at generator seeds 1 and 2 (in no split; CD p2s x1e-3 at 3 /
-#: 5 / 8 / 16 spacings: 0.58 / 0.18 / 0.105 / 0.101 and 0.50 / 0.15 / 0.095 / 0.096): the smallest at the plateau.
+#: Imaginary points (poles) of thin-wall seeds within this many seed spacings of a mid-surface point are dropped:
+#: with the mid-surface point half a wall below, a pole a few spacings above leaves the surface triangles no empty
+#: sphere. Why 8: docs/preset_choices.md, "Thin walls".
 THIN_WALL_CLEARANCE = 8.0
 
 
