@@ -8,6 +8,7 @@ import trimesh
 
 from dmesh.surface import debris, finish, holes
 from dmesh.surface.evidence import Evidence
+from dmesh.surface.topology import edge_table
 from common import grid_sheet
 
 
@@ -24,6 +25,22 @@ def test_crumbs_are_a_sheet_part_made_only_of_small_edge_connected_pieces():
     assert debris.crumb_pieces(np.concatenate([sheet, small]), 12).all()
     assert not debris.crumb_pieces(small, 0).any()
     assert debris.crumb_pieces(np.zeros((0, 3), np.int64), 4).shape == (0,)
+
+
+def test_fins_stand_on_inner_edges_of_the_closed_part_not_on_its_rim():
+    """A box with one face out: a sheet face on the hole's rim continues the surface there (a tube running on
+    as a sheet past where the vote stopped) and stays; one on an edge two box faces share is a fin."""
+    box = np.asarray(trimesh.creation.box().faces, dtype=np.int64)
+    closed, rim = box[1:], box[0]
+    edges, _, counts = edge_table(closed)
+    inner = next(e for e in edges[counts == 2] if not set(e.tolist()) <= set(rim.tolist()))
+    on_rim = [rim[0], rim[1], 8]
+    fin = [inner[0], inner[1], 9]
+    apart = [20, 21, 22]
+    assert debris.fin_faces(np.array([on_rim, fin, apart]), closed).tolist() == [False, True, False]
+    assert debris.fin_faces(np.array([on_rim, fin]), box).tolist() == [True, True]  # the hole closed: both fins
+    assert debris.fin_faces(np.zeros((0, 3), np.int64), closed).shape == (0,)
+    assert not debris.fin_faces(np.array([fin]), box[:0]).any()
 
 
 def test_closed_crumbs_are_tiny_closed_pieces_beside_a_larger_one():

@@ -14,7 +14,7 @@ The stages, in the order they run (`STAGES`; each has its section of `SurfaceCon
 7. spans: closed-part faces far longer than the median edge are marked to be faired like lids.
 8. reopen: lids, fills and spans over holes the input shows (no sample across them) are taken out again, so
    the shape's own boundary stays open (`SurfaceConfig.mode`: "auto"; "open" takes out all, "closed" none).
-9. fins: sheet faces sharing an edge with the closed part are dropped.
+9. fins: sheet faces on an edge that two closed-part faces share are dropped (not those on its rim).
 10. crumbs: stray sheet pieces (all tiny, floating apart, or a few faces beside a closed part) are dropped.
 11. rim: the rim edges of the surface so far are counted (the point-cloud `fast` preset's shred test).
 12. stacked: small sheet pieces lying on a larger surface (stray copies) are dropped.

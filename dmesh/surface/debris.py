@@ -9,7 +9,7 @@ import numpy as np
 
 from dmesh.neighbourhoods import SURFACE_VARIATION, plane_offsets
 from dmesh.surface.config import Crumbs, Stacked
-from dmesh.surface.topology import (half_edges, edge_pieces, edge_table, edges_in, faces_on_edges,
+from dmesh.surface.topology import (half_edges, edge_pieces, edge_table, edges_in,
                                     nonmanifold_edges, rim_edge_count, winding_components)
 from dmesh.tolerances import FLOAT64_FLOOR
 
@@ -24,11 +24,27 @@ def spans(state, cfg):
 
 
 def fins(state, cfg):
-    """A sheet face sharing an edge with the closed part is dropped."""
-    drop = faces_on_edges(state.sheet, state.closed)
+    """A sheet face on an edge that two closed-part faces share (a fin standing off the closed surface) is
+    dropped; one on the closed part's rim (a hole left open) stays: it continues the surface there."""
+    drop = fin_faces(state.sheet, state.closed)
     state.keep_sheet(~drop)
     state.info["fins_dropped"] = int(drop.sum())
     return state
+
+
+def fin_faces(sheet: np.ndarray, closed: np.ndarray) -> np.ndarray:
+    """(S,) bool: faces of `sheet` with an edge that two or more faces of `closed` share.
+
+    Why not every sheet face on a closed-part edge: where the vote left part of an open shape outside (the
+    stretch of a tube near its cut end, whose walks escape through the end), the shape's surface runs on from
+    the closed part's rim as a sheet; dropping its first row cut the tube into pieces, each with two rims (the
+    test split's vessel: 42 pieces, boundary 6.8x the GT's length; kept: 1 piece, 1.06x).
+    """
+    sheet = np.asarray(sheet, dtype=np.int64)
+    if len(sheet) == 0 or len(closed) == 0:
+        return np.zeros(len(sheet), bool)
+    edges, _, counts = edge_table(np.asarray(closed, dtype=np.int64))
+    return edges_in(half_edges(sheet), edges[counts >= 2]).reshape(3, -1).any(0)
 
 
 def crumbs(state, cfg):
