@@ -15,9 +15,14 @@ their hashes:
                      another project module that it names (imported by name, or as an attribute of an
                      imported module) is added as a `def:` entry
     file:PATH        a file the run depends on whole: the method's own package (`baselines/`: the wrapper
-                     the registry built before the worker started) and the input generation
-                     (`eval.code_hash.INPUT_MODULES` and what they import)
+                     the registry built before the worker started)
     tree:native      the native sources, when the closure imports `dmesh.native`
+    inputs:version   the version of the cached input data (`eval.code_hash.INPUT_VERSION`): a run depends on
+                     its input's data, not on the text of the code that generated it
+
+Records made before "inputs:version" held the input generation as `file:` entries (`INPUT_MODULES` and what
+they import, whole), so that any refactor of datasets/ made every stored run stale; `migrate` rewrites such a
+record, while it still holds, into the current form.
 
 A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
 hashes, taken from the sources now, give the same digest (`fresh`; `eval.stored.adopt_current`). One digest
@@ -46,13 +51,15 @@ import threading
 from pathlib import Path
 from typing import Iterator, Mapping
 
-from eval.code_hash import (INPUT_MODULES, NATIVE_TREES, REPO, _module_file, method_trees, module_closure,
-                             source_hash, strip_docstrings)
+from eval.code_hash import (INPUT_MODULES, INPUT_VERSION, NATIVE_TREES, REPO, _module_file, method_trees,
+                             module_closure, source_hash, strip_docstrings)
 
 #: Packages whose executed functions are recorded one by one (the harness, `eval`, is not a run's code).
 TRACED_PACKAGES = ("dmesh", "datasets", "baselines")
 #: Packages a run depends on whole, file by file, when they are in its closure (the method wrappers).
 WHOLE_PACKAGES = ("baselines",)
+#: The entry of a run's record that holds the version of its input data (`eval.code_hash.INPUT_VERSION`).
+INPUTS_ENTRY = "inputs:version"
 
 
 @contextlib.contextmanager
@@ -204,8 +211,7 @@ def entry_hashes(method, codes, root: str | Path | None = None,
     base = Path(root if root is not None else REPO).resolve()
     loaded = Path(code_root).resolve() if code_root is not None else base
     trees = method_trees(method, base)
-    whole = set(module_closure(INPUT_MODULES, str(base)))
-    deps: dict[str, str] = {}
+    deps: dict[str, str] = {INPUTS_ENTRY: str(INPUT_VERSION)}
     for tree in trees:
         if tree in NATIVE_TREES:
             deps[f"tree:{tree}"] = source_hash((tree,), base)[:16]
@@ -213,7 +219,7 @@ def entry_hashes(method, codes, root: str | Path | None = None,
         fc = file_code(base / tree)
         if fc is None:
             continue
-        if tree in whole or tree.split("/")[0] in WHOLE_PACKAGES:
+        if tree.split("/")[0] in WHOLE_PACKAGES:
             deps[f"file:{tree}"] = fc.whole
             continue
         deps[f"outline:{tree}"] = fc.outline
@@ -240,6 +246,8 @@ def current(entry: str, root: str | Path | None = None) -> str | None:
     """The hash that dependency `entry` (a `deps_for` key) has in the sources under `root` now; None if its
     file or unit is gone."""
     base = Path(root if root is not None else REPO)
+    if entry == INPUTS_ENTRY:
+        return str(INPUT_VERSION)
     kind, _, rest = entry.partition(":")
     if kind == "tree":
         return source_hash((rest,), base)[:16]
@@ -268,5 +276,25 @@ def fresh(deps: Mapping | None, root: str | Path | None = None) -> bool:
     return all(current(entry, root) == value for entry, value in deps.items())
 
 
-__all__ = ["record", "deps_for", "entry_hashes", "digest", "fresh", "current", "file_code", "strip_docstrings",
-           "TRACED_PACKAGES"]
+def migrate(deps: Mapping | None, method, root: str | Path | None = None) -> dict | None:
+    """A record of a run of `method` made before "inputs:version" (the input generation as whole `file:`
+    entries) in the current form, when it still holds (`fresh`); None when `deps` is already current, or holds no
+    longer (the run is stale either way: nothing to keep).
+
+    The input generation's `file:` entries give way to "inputs:version", but for the files of `method`'s own
+    closure (a baseline that calls a datasets/ helper keeps depending on that file)."""
+    if not deps or not isinstance(deps, Mapping) or "digest" not in deps:
+        return None
+    base = Path(root if root is not None else REPO).resolve()
+    entries = list(deps.get("entries") or [])
+    own = set(method_trees(method, base))
+    legacy = {f"file:{f}" for f in module_closure(INPUT_MODULES, str(base)) if f not in own}
+    if INPUTS_ENTRY in entries or not legacy.intersection(entries) or not fresh(deps, base):
+        return None
+    hashes = {e: current(e, base) for e in entries if e not in legacy}
+    hashes[INPUTS_ENTRY] = str(INPUT_VERSION)
+    return {"entries": sorted(hashes), "digest": digest(hashes)}
+
+
+__all__ = ["record", "deps_for", "migrate", "INPUTS_ENTRY", "entry_hashes", "digest", "fresh", "current", "file_code",
+           "strip_docstrings", "TRACED_PACKAGES"]

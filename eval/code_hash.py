@@ -1,13 +1,17 @@
 """The hashes of the code a run depends on: its method's code version, the metric and pre-processing versions.
 
-A run's key holds its method's code version (`code_version`): the package version and a hash of the method's
+A run's key holds its method's code version (`code_version`): the package version, a hash of the method's
 module closure (`method_trees`: the files of its module and of every project module they import, lazy imports
-included, plus the input generation `INPUT_MODULES`), so editing one baseline reruns no other method's stored
-runs. The metric code is versioned apart (`metrics_version`, in each run's metrics, not in its key: `dmesh
-rescore` scores a stored mesh again), and so is `eval.preprocess` (`preprocess_version`, in the settings of a
-pre-processed or lifted input). Hashes are over each Python file's syntax tree without docstrings
-(`code_text`), so comments, docstrings and layout change no key. `eval.code_deps` narrows a code version to the
-code a run executed; `eval.sweep` puts the code version into every run's key.
+included) and the version of the inputs (`INPUT_VERSION`), so editing one baseline reruns no other method's
+stored runs. A run depends on its input's data, not on the text of the code that generated it: the harness
+caches each input by shape, settings and `INPUT_VERSION` (`eval.inputs`), never by that code, so a refactor of
+the input generation reruns nothing, and a change to what it generates bumps `INPUT_VERSION`
+(tests/test_input_version.py holds fingerprints of generated inputs and fails until it is bumped). The metric
+code is versioned apart (`metrics_version`, in each run's metrics, not in its key: `dmesh rescore` scores a
+stored mesh again), and so is `eval.preprocess` (`preprocess_version`, in the settings of a pre-processed or
+lifted input). Hashes are over each Python file's syntax tree without docstrings (`code_text`), so comments,
+docstrings and layout change no key. `eval.code_deps` narrows a code version to the code a run executed;
+`eval.sweep` puts the code version into every run's key.
 """
 from __future__ import annotations
 
@@ -18,8 +22,14 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: Modules every run depends on besides its method: the GT and input generation (in every run's key; the metric
-#: code is versioned apart, `METRIC_MODULES`).
+#: Version of every input the harness generates and caches: the normalised GT, point samples, captures,
+#: corruptions and scans (`INPUT_MODULES`). In the input cache's folder names (`eval.inputs.shape_dir`), in every
+#: run's code version and in its `code_deps` (entry "inputs:version"). Bump it with any change to what those
+#: modules generate, so that no cached input and no stored run made from the earlier data is reused; a change
+#: that generates the same data (a refactor, a module split) keeps it. tests/test_input_version.py fails on a
+#: generated input that differs from its fingerprint at this version. (2: inside-out closed GTs flipped outward.)
+INPUT_VERSION = 2
+#: The input generation: the modules whose output `INPUT_VERSION` versions (tests/test_input_version.py).
 INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.sampling",
                  "datasets.capture", "datasets.corrupt", "datasets.scan")
 #: The metrics of a run. Not in its key: a stored mesh is scored again under new metric code without
@@ -151,15 +161,15 @@ def module_closure(roots: tuple[str, ...], root: str) -> tuple[str, ...]:
 
 def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
     """The sources a method's results depend on: its own `code_trees` attribute if it has one, else the files of
-    its module and of the project modules it imports (`module_closure`), plus the input generation
-    (`INPUT_MODULES`). So editing one baseline, or the harness around the runs, reruns no other method's stored
-    runs; editing the metrics reruns nothing (`metrics_version`)."""
+    its module and of the project modules it imports (`module_closure`). So editing one baseline, or the harness
+    around the runs, reruns no other method's stored runs; editing the metrics reruns nothing
+    (`metrics_version`), and the inputs are versioned by `INPUT_VERSION`."""
     own = getattr(method, "code_trees", None)
     if own:
         return tuple(own)
     modules = {getattr(type(method), "__module__", "") or "",
                getattr(getattr(method, "reconstruct", None), "__module__", "") or ""}
-    roots = tuple(sorted(m for m in modules if m and m != "builtins")) + INPUT_MODULES
+    roots = tuple(sorted(m for m in modules if m and m != "builtins"))
     return module_closure(roots, str(root))
 
 
@@ -169,8 +179,10 @@ def metrics_version(root: str | Path = REPO) -> str:
 
 
 def code_version(method, root: str | Path = REPO) -> str:
-    """Package version + '+' + the first 16 hex digits of the hash of the method's sources (`method_trees`)."""
-    return f"{package_version()}+src.{source_hash(method_trees(method, root), root)[:16]}"
+    """Package version + '+src.' + the first 16 hex digits of the hash of the method's sources (`method_trees`)
+    and the inputs' version (`INPUT_VERSION`)."""
+    sources = source_hash(method_trees(method, root), root)
+    return f"{package_version()}+src.{hashlib.sha256(f'{sources}:inputs-v{INPUT_VERSION}'.encode()).hexdigest()[:16]}"
 
 
 def sources_changed(method, expected: str, root: str | Path = REPO) -> str | None:

@@ -123,6 +123,7 @@ def load_export(path: str | Path, db: str | Path, mesh_root: str | Path | None =
     whose key the store already holds are left as the store has them (`dmesh import-store`). `runs`: the
     export's runs when the caller has read them already (`read_export`)."""
     from eval.store import Store
+    from eval.stored import migrate_records
 
     runs = read_export(path) if runs is None else runs
     loaded = 0
@@ -136,6 +137,7 @@ def load_export(path: str | Path, db: str | Path, mesh_root: str | Path | None =
             if mesh_root is not None and isinstance(mp, str) and mp and not Path(mp).is_absolute():
                 row["mesh_path"] = str(Path(mesh_root) / mp)
             store.upsert(row)
+        migrate_records(store)  # an export written before the inputs were versioned by INPUT_VERSION
     return loaded
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.code_hash import INPUT_VERSION
 from eval.io import atomic_path, honour_umask, write_mesh, write_text
 from eval.plain import jsonable, one_line
 from eval.shapes import ShapeRef
@@ -31,15 +32,14 @@ from eval.sweep import RunSpec, Sweep, canonical_json
 
 log = logging.getLogger(__name__)
 
-#: Version of the GT preparation, in the cache folder names: bumped when `prepare_gt` changes the GT it
-#: writes, so that no input derived from an older GT is reused (2: inside-out closed GTs flipped outward).
-GT_CACHE_VERSION = 2
 
 
 def shape_dir(work: str | Path, shape: ShapeRef, radius: float) -> Path:
-    """Cache folder of one GT shape in one normalisation."""
+    """Cache folder of one GT shape in one normalisation, at the inputs' version (`eval.code_hash.INPUT_VERSION`:
+    bump it when `prepare_gt` or the input generation changes the data it writes, so that no input made from an
+    earlier GT is reused)."""
     safe = "".join(c if c.isalnum() or c in "-_@." else "_" for c in shape.id)
-    return Path(work) / "inputs" / f"{safe}-{shape.gt_hash[:12]}-r{radius:g}-v{GT_CACHE_VERSION}"
+    return Path(work) / "inputs" / f"{safe}-{shape.gt_hash[:12]}-r{radius:g}-v{INPUT_VERSION}"
 
 
 def prepare_gt(shape: ShapeRef, work: str | Path, radius: float = 1.0) -> tuple[ShapeRef, Path]:

@@ -68,12 +68,12 @@ from eval.local_executor import run_local
 from eval.outcomes import Outcomes
 from eval.plain import one_line
 from eval.store import LEASE_S, Lease, Store
-from eval.stored import RERUN_MODES, adopt, is_stored, metrics_now
+from eval.stored import RERUN_MODES, adopt, is_stored, metrics_now, migrate_records
 from eval.sweep import Sweep, expand, get_method
 # Re-exported: callers import these from here.
 from eval.execute import (MONITOR_SAMPLES, checkpoint_path, drop_checkpoint, execute_run,  # noqa: F401
                           limit_threads, mesh_path_for, resolve_mesh_path, score)
-from eval.inputs import (GT_CACHE_VERSION, input_id, input_path, load_gt, load_inputs,  # noqa: F401
+from eval.inputs import (input_id, input_path, load_gt, load_inputs,  # noqa: F401
                          prepare_gt, prepare_input, resolve_and_prepare_shapes, shape_dir)
 from eval.plan import SweepPlan, plan_sweep  # noqa: F401
 from eval.stored import adopt_current  # noqa: F401
@@ -179,6 +179,9 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
     shapes, gts = resolve_and_prepare_shapes(sweep, work)
     lease = Lease.new()
     with Store(runner.db_path) as store:
+        migrated = migrate_records(store)
+        if migrated:
+            log.info("%d stored runs' code records rewritten to version their inputs by INPUT_VERSION", migrated)
         runs, kept = adopt(expand(sweep, shapes), store, runner)
         summary = SweepSummary(total=len(runs), kept=kept, db=str(runner.db_path), keys=[r.key for r in runs])
         pending, retry_attempts = [], {}

@@ -397,6 +397,11 @@ class Store:
             return self._conn.execute("UPDATE runs SET metrics_json=? WHERE key=? AND status='done'",
                                       (_json(metrics), key)).rowcount == 1
 
+    def set_code_deps(self, key: str, deps: dict) -> bool:
+        """Replaces the `code_deps` of run `key` (`eval.stored.migrate_records`); False if there is no such run."""
+        with self._tx():
+            return self._conn.execute("UPDATE runs SET code_deps=? WHERE key=?", (_json(deps), key)).rowcount == 1
+
     def delete(self, keys: Iterable[str]) -> int:
         """Deletes the given runs; returns how many were removed."""
         keys = list(keys)
@@ -434,6 +439,12 @@ class Store:
         sql = ("SELECT * FROM runs WHERE base_key=? AND status='done' AND code_deps IS NOT NULL "
                "ORDER BY finished_at DESC")
         return [_decode(r) for r in self._conn.execute(sql, (base_key,))]
+
+    def code_deps_without(self, entry: str) -> list[dict]:
+        """(key, method, code_deps) of the done runs whose `code_deps` do not name `entry`, JSON decoded."""
+        sql = ("SELECT key, method, code_deps FROM runs WHERE status='done' AND code_deps IS NOT NULL "
+               "AND instr(code_deps, ?) = 0")
+        return [_decode(r) for r in self._conn.execute(sql, (json.dumps(entry),))]
 
     def counts(self) -> dict[str, int]:
         """Number of runs per status."""

@@ -58,6 +58,28 @@ def adopt_current(runs: list[RunSpec], store: Store) -> list[RunSpec]:
     return out
 
 
+def migrate_records(store: Store) -> int:
+    """Rewrites, in `store`, the `code_deps` of each done run recorded before "inputs:version" (the input
+    generation as whole files) that still holds, into the current form (`eval.code_deps.migrate`), so that a
+    later refactor of datasets/ leaves it current; returns how many. A run of a method no longer registered, or
+    whose record holds no longer, is left as it is. One query when none is left."""
+    from eval.sweep import get_method
+
+    methods: dict = {}
+    migrated = 0
+    for row in store.code_deps_without(code_deps.INPUTS_ENTRY):
+        if row["method"] not in methods:
+            try:
+                methods[row["method"]] = get_method(row["method"])
+            except ValueError:
+                methods[row["method"]] = None
+        method = methods[row["method"]]
+        new = code_deps.migrate(row["code_deps"], method) if method is not None else None
+        if new is not None:
+            migrated += store.set_code_deps(row["key"], new)
+    return migrated
+
+
 def adopt(runs: list[RunSpec], store: Store, runner) -> tuple[list[RunSpec], int]:
     """(`runs` with the current runs of earlier code versions adopted (`adopt_current`), how many were): none
     when `runner.rerun` asks for stored runs again, since a rerun runs the current code under its own key."""

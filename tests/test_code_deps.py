@@ -11,6 +11,7 @@ import numpy as np
 
 from eval import code_deps
 from eval.code_deps import file_code
+from eval.code_hash import INPUT_VERSION
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -146,11 +147,12 @@ def test_a_recorded_run_stays_current_until_code_it_ran_changes(tmp_path):
     deps = code_deps.deps_for(get_method("dmesh"), executed, root=tmp_path, code_root=REPO)
     hashes = code_deps.entry_hashes(get_method("dmesh"), executed, root=tmp_path, code_root=REPO)
     assert deps == {"entries": sorted(hashes), "digest": code_deps.digest(hashes)}
-    assert all(len(v) == 16 for v in hashes.values())
+    assert all(len(v) == 16 for k, v in hashes.items() if k != "inputs:version")
     ran = {k.split("::")[1] for k in hashes if k.startswith("def:dmesh/recon/pointcloud.py::")}
     assert {"reconstruct", "_reconstruct_once", "_Run.setup"} <= ran
     assert "outline:dmesh/recon/pointcloud.py" in hashes and "file:baselines/dmesh_pointcloud.py" in hashes
-    assert "file:datasets/sampling.py" in hashes  # the input generation, whole
+    assert hashes["inputs:version"] == str(INPUT_VERSION)  # the input data's version, not the generating code
+    assert not any(k.startswith(("file:datasets/", "outline:datasets/")) for k in hashes)
     assert not any(k.startswith(("def:eval/", "outline:eval/")) for k in hashes)  # the harness is not a run's code
     assert code_deps.fresh(deps, tmp_path)
 
@@ -181,6 +183,32 @@ def test_a_recorded_run_stays_current_until_code_it_ran_changes(tmp_path):
     with open(tmp_path / "dmesh" / "recon" / "loop.py", "a") as f:
         f.write("\nEDITED = 1\n")
     assert not code_deps.fresh(deps, tmp_path)
+
+
+def test_a_record_from_before_the_input_version_is_migrated_while_it_holds(tmp_path, monkeypatch):
+    """A record that held the input generation as whole files becomes the current form while those files are
+    unchanged; then a refactor of datasets/ leaves it fresh, and a new INPUT_VERSION makes it stale. A record
+    whose code changed is not migrated, nor is a current one."""
+    from eval.code_hash import INPUT_MODULES, module_closure
+    from eval.sweep import get_method
+
+    for pkg in ("dmesh", "baselines", "datasets", "eval"):
+        shutil.copytree(REPO / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    psr = get_method("psr")
+    now = code_deps.entry_hashes(psr, [], root=tmp_path)
+    inputs = {f"file:{f}": code_deps.current(f"file:{f}", tmp_path) for f in module_closure(INPUT_MODULES, str(tmp_path))}
+    old = {**{k: v for k, v in now.items() if k != "inputs:version"}, **inputs}
+    legacy = {"entries": sorted(old), "digest": code_deps.digest(old)}
+    assert code_deps.fresh(legacy, tmp_path)
+    migrated = code_deps.migrate(legacy, psr, tmp_path)
+    assert migrated == {"entries": sorted(now), "digest": code_deps.digest(now)}
+    assert code_deps.migrate(migrated, psr, tmp_path) is None  # already current
+    with open(tmp_path / "datasets" / "families.py", "a") as f:  # a refactor: same data
+        f.write("\n\ndef _moved_here():\n    return 1\n")
+    assert code_deps.fresh(migrated, tmp_path) and not code_deps.fresh(legacy, tmp_path)
+    assert code_deps.migrate(legacy, psr, tmp_path) is None  # holds no longer: stale either way
+    monkeypatch.setattr("eval.code_deps.INPUT_VERSION", INPUT_VERSION + 1)
+    assert not code_deps.fresh(migrated, tmp_path)
 
 
 def test_the_record_sees_threads_started_inside_it():
@@ -215,3 +243,25 @@ def test_nothing_is_recorded_under_another_trace_function():
     assert executed is None
     assert not code_deps.fresh(None) and not code_deps.fresh({}) and not code_deps.fresh({"entries": [],
                                                                                            "digest": "0"})
+
+
+def test_a_store_is_migrated_once(tmp_path):
+    """`eval.stored.migrate_records` rewrites the records from before the input version in a store (the runner
+    calls it at the start of every sweep, `import-store` after loading an export), then finds none left."""
+    from eval.code_hash import INPUT_MODULES, module_closure
+    from eval.store import Store
+    from eval.stored import migrate_records
+    from eval.sweep import get_method
+
+    now = code_deps.entry_hashes(get_method("psr"), [])
+    old = {**{k: v for k, v in now.items() if k != "inputs:version"},
+           **{f"file:{f}": code_deps.current(f"file:{f}") for f in module_closure(INPUT_MODULES, str(REPO))}}
+    row = {"key": "k" * 64, "method": "psr", "config_label": "", "shape": "torus", "category": "closed",
+           "input_kind": "pointcloud", "seed": 0, "status": "done", "gt_hash": "0" * 64, "code_version": "0+src.old",
+           "code_deps": {"entries": sorted(old), "digest": code_deps.digest(old)}}
+    with Store(tmp_path / "s.sqlite") as store:
+        store.upsert(row)
+        store.upsert({**row, "key": "j" * 64, "method": "no_such_method"})  # unknown: left as it is
+        assert migrate_records(store) == 1 and migrate_records(store) == 0
+        assert store.get("k" * 64)["code_deps"] == {"entries": sorted(now), "digest": code_deps.digest(now)}
+        assert store.get("j" * 64)["code_deps"] == row["code_deps"]

@@ -139,19 +139,19 @@ def test_source_hash_changes_with_the_code(tmp_path):
 
 
 def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
-    """Keys hash the method's module and what it imports (plus the inputs, not the metrics): editing one baseline
-    changes its own code version and no other method's; DMesh methods follow the library and native code."""
+    """Keys hash the method's module and what it imports and the inputs' version (not the input generation's
+    code, not the metrics): editing one baseline changes its own code version and no other method's; DMesh
+    methods follow the library and native code; an edit of datasets/ changes none, a new INPUT_VERSION all."""
     import shutil
 
+    from eval.code_hash import INPUT_VERSION
     from eval.sweep import (REPO, _source_hash, code_version, get_method, method_trees, metrics_version,
                             module_closure)
 
     psr, bpa, dm = get_method("psr"), get_method("bpa"), get_method("dmesh")
     assert "baselines/psr.py" in method_trees(psr) and "baselines/bpa.py" not in method_trees(psr)
-    # psr follows the input generation (the capture's camera maths is dmesh/camera.py), not the DMesh procedures
-    assert not any(t.startswith(("dmesh/recon/", "dmesh/probability")) or t == "native" for t in method_trees(psr))
+    assert not any(t.startswith(("dmesh/", "datasets/")) or t == "native" for t in method_trees(psr))
     assert {"dmesh/recon/pointcloud.py", "dmesh/losses/chamfer.py", "native"} <= set(method_trees(dm))
-    assert "datasets/synthetic.py" in method_trees(psr)
     assert not any("eval/metrics.py" in method_trees(m) for m in (psr, bpa, dm))  # metrics: metrics_version
 
     for pkg in ("dmesh", "baselines", "datasets", "eval"):
@@ -167,7 +167,10 @@ def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
     with open(tmp_path / "datasets" / "sampling.py", "a") as f:
         f.write("\nEDITED = 1\n")
     _source_hash.cache_clear()
-    assert all(code_version(m, tmp_path) != after[m.name] for m in (psr, bpa, dm))
+    assert all(code_version(m, tmp_path) == after[m.name] for m in (psr, bpa, dm))  # inputs: INPUT_VERSION
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr("eval.code_hash.INPUT_VERSION", INPUT_VERSION + 1)
+        assert all(code_version(m, tmp_path) != after[m.name] for m in (psr, bpa, dm))
     # An edit of the metrics reruns no method: it changes the metrics version only (`dmesh rescore`).
     versions = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
     scored = metrics_version(tmp_path)
@@ -358,7 +361,7 @@ def test_a_run_whose_executed_code_is_unchanged_stays_current_under_a_new_code_v
     with Store(runner.db_path) as store:
         (row,) = store.rows()
     assert row["base_key"] and len(row["code_deps"]["digest"]) == 16
-    assert any(k.startswith("file:datasets/") for k in row["code_deps"]["entries"])
+    assert "inputs:version" in row["code_deps"]["entries"]  # the inputs by their version, not by their code
 
     monkeypatch.setattr(eval.code_hash, "code_version", lambda method, root=REPO: "9.9+src.elsewhere")
     plan = plan_sweep(sweep, runner)
