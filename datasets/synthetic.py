@@ -2,7 +2,7 @@
 
 Every generator takes a seed (for its random parameters) plus keyword parameters and returns a
 `trimesh.Trimesh` in its own frame: roughly unit size (normalise with `datasets.normalize` before use) and
-Y-up like the capture rig (the generators model Z-up and `_y_up` rotates their output). The same seed
+Y-up like the capture rig (the generators model Z-up and `datasets.mesh_parts.y_up` rotates their output). The same seed
 and parameters always give the identical mesh (same vertex and face arrays).
 `SHAPES` maps a name to (class, generator), with class one of "closed", "open", "mixed":
 
@@ -12,19 +12,22 @@ and parameters always give the identical mesh (same vertex and face arrays).
   vertices, so merging vertices by position keeps them apart and `datasets.meshes.classify` says "mixed".
 
 The families of `datasets.families` (the test split's shapes smooth at the sampling scale: vessel, thin_cup,
-bracket, bracket_hose, tank_pipes; 1.6-2.1M faces each) are registered in `SHAPES` too, by that module.
+bracket, bracket_hose, tank_pipes; 1.6-2.1M faces each) are in `SHAPES` too. The building blocks (grids,
+tubes, booleans, the Y-up turn) are `datasets.mesh_parts`.
 
 Shape letters: V vertices, F faces, U x W a parameter grid of vertices.
 The CSG shapes (`genus2`, `csg`) use trimesh booleans with the `manifold3d` engine (harness extra).
 """
 from __future__ import annotations
 
-import functools
 import logging
 from typing import Callable
 
 import numpy as np
 import trimesh
+
+from datasets.families import FAMILIES
+from datasets.mesh_parts import boolean, concat, grid_faces, polar_patch, rotation, tube, y_up
 
 log = logging.getLogger(__name__)
 
@@ -32,149 +35,10 @@ __all__ = ["SHAPES", "generate", "shapes_in_class"]
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Helpers
-# ----------------------------------------------------------------------------------------------------------
-
-def _grid_faces(nu: int, nw: int, wrap_u: bool = False, wrap_w: bool = False,
-                flip_u: bool = False) -> np.ndarray:
-    """Triangles of a U x W vertex grid (vertex (i, j) has index i * nw + j).
-
-    Args:
-        nu, nw: grid size along u and w.
-        wrap_u: connect row nu-1 back to row 0 (a tube along u).
-        wrap_w: connect column nw-1 back to column 0.
-        flip_u: with wrap_u, row 0 is glued reversed (j -> nw-1-j): a Mobius band.
-
-    Returns:
-        (F, 3) int64 faces, two per grid quad, consistently oriented (except across a Mobius seam).
-    """
-    iu = np.arange(nu if wrap_u else nu - 1)
-    jw = np.arange(nw if wrap_w else nw - 1)
-    i, j = np.meshgrid(iu, jw, indexing="ij")
-    i, j = i.ravel(), j.ravel()
-    i1 = (i + 1) % nu
-    j1 = (j + 1) % nw
-    a = i * nw + j
-    d = i * nw + j1
-    seam = wrap_u & (i1 == 0) if flip_u else np.zeros_like(i, bool)
-    jb = np.where(seam, nw - 1 - j, j)
-    jc = np.where(seam, nw - 1 - j1, j1)
-    b = i1 * nw + jb
-    c = i1 * nw + jc
-    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
-
-
-def _polar_patch(rings: np.ndarray, center: np.ndarray) -> trimesh.Trimesh:
-    """An open disc-like patch: a centre vertex fanned to the first of concentric closed rings.
-
-    Args:
-        rings: (R, S, 3) float64, R rings of S points each, from the centre outwards.
-        center: (3,) float64, the centre vertex.
-
-    Returns:
-        A mesh with 1 + R * S vertices and S * (2R - 1) faces; the last ring is its boundary.
-    """
-    r, s = rings.shape[:2]
-    verts = np.concatenate([center[None], rings.reshape(-1, 3)])
-    j = np.arange(s)
-    fan = np.stack([np.zeros(s, np.int64), 1 + j, 1 + (j + 1) % s], 1)
-    quads = _grid_faces(r, s, wrap_w=True) + 1
-    return trimesh.Trimesh(verts, np.concatenate([fan, quads]), process=False)
-
-
-def _tube(curve: np.ndarray, radius: float | np.ndarray, sides: int) -> trimesh.Trimesh:
-    """A watertight tube around a closed polyline, with twist-corrected parallel-transport frames.
-
-    Args:
-        curve: (U, 3) float64 points of a closed curve (the last point is not repeated).
-        radius: tube radius, a float or (U,) float64.
-        sides: vertices around each cross-section.
-
-    Returns:
-        A closed (watertight, genus-1 topology) mesh with U * sides vertices.
-    """
-    n = len(curve)
-    tangent = np.roll(curve, -1, 0) - np.roll(curve, 1, 0)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    normal = np.zeros_like(curve)
-    seed = np.array([0.0, 0.0, 1.0]) if abs(tangent[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    normal[0] = np.cross(tangent[0], np.cross(seed, tangent[0]))
-    normal[0] /= np.linalg.norm(normal[0])
-    for k in range(1, n + 1):  # parallel transport, once around (k == n measures the holonomy)
-        t = tangent[k % n]
-        nk = normal[k - 1] - np.dot(normal[k - 1], t) * t
-        nk /= np.linalg.norm(nk)
-        if k < n:
-            normal[k] = nk
-        else:
-            closing = nk
-    # Spread the holonomy angle along the curve so the frames close up.
-    b0 = np.cross(tangent[0], normal[0])
-    twist = np.arctan2(np.dot(closing, b0), np.dot(closing, normal[0]))
-    angle = -twist * np.arange(n) / n
-    binormal = np.cross(tangent, normal)
-    normal, binormal = (np.cos(angle)[:, None] * normal + np.sin(angle)[:, None] * binormal,
-                        -np.sin(angle)[:, None] * normal + np.cos(angle)[:, None] * binormal)
-    phi = 2 * np.pi * np.arange(sides) / sides
-    r = np.broadcast_to(np.asarray(radius, float), (n,))[:, None, None]
-    ring = np.cos(phi)[None, :, None] * normal[:, None] + np.sin(phi)[None, :, None] * binormal[:, None]
-    verts = (curve[:, None] + r * ring).reshape(-1, 3)
-    faces = _grid_faces(n, sides, wrap_u=True, wrap_w=True)
-    mesh = trimesh.Trimesh(verts, faces, process=False)
-    if mesh.volume < 0:
-        mesh.invert()
-    return mesh
-
-
-#: Z-up (how the generators model) to Y-up (how shapes are returned): (x, y, z) -> (x, z, -y).
-_Z_UP_TO_Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
-
-
-def _y_up(fn: Callable[..., trimesh.Trimesh]) -> Callable[..., trimesh.Trimesh]:
-    """Rotate a Z-up generator's output to Y-up (a proper rotation: winding and volume sign are kept).
-
-    Composite shapes build on the raw Z-up parts through `fn.__wrapped__`.
-    """
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs) -> trimesh.Trimesh:
-        m = fn(*args, **kwargs)
-        return trimesh.Trimesh(np.asarray(m.vertices, np.float64) @ _Z_UP_TO_Y_UP[:3, :3].T,
-                               np.asarray(m.faces, np.int64), process=False)
-    return wrapper
-
-
-def _rotation(axis, angle: float) -> np.ndarray:
-    """(4, 4) float64 rotation about `axis` through the origin."""
-    return trimesh.transformations.rotation_matrix(angle, np.asarray(axis, float))
-
-
-def _concat(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
-    """Concatenate parts into one mesh without merging any vertices (components stay apart)."""
-    verts, faces, offset = [], [], 0
-    for p in parts:
-        verts.append(np.asarray(p.vertices, np.float64))
-        faces.append(np.asarray(p.faces, np.int64) + offset)
-        offset += len(p.vertices)
-    return trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
-
-
-def _boolean(op: str, meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
-    """A trimesh boolean with the manifold3d engine; says which extra to install if it is missing."""
-    try:
-        import manifold3d  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError("CSG shapes need the manifold3d package: pip install 'dmesh-harness[harness]'") from exc
-    fn = {"union": trimesh.boolean.union, "difference": trimesh.boolean.difference,
-          "intersection": trimesh.boolean.intersection}[op]
-    out = fn(meshes, engine="manifold", check_volume=False)
-    return trimesh.Trimesh(out.vertices, out.faces, process=False)
-
-
-# ----------------------------------------------------------------------------------------------------------
 # Closed shapes
 # ----------------------------------------------------------------------------------------------------------
 
-@_y_up
+@y_up
 def sphere(seed: int = 0, subdivisions: int = 3) -> trimesh.Trimesh:
     """A closed unit icosphere (20 * 4^subdivisions faces), stretched by the seed into an ellipsoid."""
     rng = np.random.default_rng(seed)
@@ -183,7 +47,7 @@ def sphere(seed: int = 0, subdivisions: int = 3) -> trimesh.Trimesh:
     return m
 
 
-@_y_up
+@y_up
 def torus(seed: int = 0, major: float = 0.7, minor: float = 0.25, sections: int = 48) -> trimesh.Trimesh:
     """A closed genus-1 torus (2 * sections * (sections // 2) faces), slightly squashed by the seed."""
     rng = np.random.default_rng(seed)
@@ -193,7 +57,7 @@ def torus(seed: int = 0, major: float = 0.7, minor: float = 0.25, sections: int 
     return m
 
 
-@_y_up
+@y_up
 def genus2(seed: int = 0, major: float = 0.6, minor: float = 0.2, sections: int = 48) -> trimesh.Trimesh:
     """A closed genus-2 solid: the union of two overlapping tori (manifold3d boolean, ~4.5K faces)."""
     rng = np.random.default_rng(seed)
@@ -205,10 +69,10 @@ def genus2(seed: int = 0, major: float = 0.6, minor: float = 0.2, sections: int 
                                    minor_sections=sections // 2)
         t.apply_translation([sign * gap, 0.0, 0.0])
         parts.append(t)
-    return _boolean("union", parts)
+    return boolean("union", parts)
 
 
-@_y_up
+@y_up
 def trefoil(seed: int = 0, radius: float = 0.13, samples: int = 160, sides: int = 14) -> trimesh.Trimesh:
     """A closed knotted tube around a trefoil knot (samples * sides * 2 faces), radius varied by the seed."""
     rng = np.random.default_rng(seed)
@@ -216,15 +80,15 @@ def trefoil(seed: int = 0, radius: float = 0.13, samples: int = 160, sides: int 
     curve = np.stack([np.sin(t) + 2 * np.sin(2 * t), np.cos(t) - 2 * np.cos(2 * t), -np.sin(3 * t)], 1) / 3.0
     curve[:, 2] *= 1.0 + 0.2 * rng.uniform(-1, 1)
     r = radius * (1.0 + 0.1 * rng.uniform(-1, 1)) * (1.0 + 0.15 * np.sin(3 * t + rng.uniform(0, 2 * np.pi)))
-    return _tube(curve, r, sides)
+    return tube(curve, r, sides)
 
 
-@_y_up
+@y_up
 def csg(seed: int = 0, sections: int = 32) -> trimesh.Trimesh:
     """A closed CSG solid: (box intersect sphere) minus three orthogonal cylinders (manifold3d booleans)."""
     rng = np.random.default_rng(seed)
     half = 0.75 * (1.0 + 0.06 * rng.uniform(-1, 1, 3))
-    body = _boolean("intersection", [trimesh.creation.box(extents=2 * half),
+    body = boolean("intersection", [trimesh.creation.box(extents=2 * half),
                                      trimesh.creation.icosphere(subdivisions=3, radius=1.0)])
     r = 0.35 * (1.0 + 0.1 * rng.uniform(-1, 1))
     holes = []
@@ -233,14 +97,14 @@ def csg(seed: int = 0, sections: int = 32) -> trimesh.Trimesh:
         if axis[2] != 1.0:
             c.apply_transform(trimesh.geometry.align_vectors([0, 0, 1], axis))
         holes.append(c)
-    return _boolean("difference", [body, _boolean("union", holes)])
+    return boolean("difference", [body, boolean("union", holes)])
 
 
 # ----------------------------------------------------------------------------------------------------------
 # Open shapes
 # ----------------------------------------------------------------------------------------------------------
 
-@_y_up
+@y_up
 def disc(seed: int = 0, rings: int = 16, segments: int = 64) -> trimesh.Trimesh:
     """An open planar disc (z = 0) with a wobbly elliptic rim; segments * (2 rings - 1) faces."""
     rng = np.random.default_rng(seed)
@@ -250,10 +114,10 @@ def disc(seed: int = 0, rings: int = 16, segments: int = 64) -> trimesh.Trimesh:
     aspect = 1.0 - 0.2 * rng.uniform(0, 1)
     s = (np.arange(1, rings + 1) / rings)[:, None]
     pts = np.stack([s * rim * np.cos(phi), s * rim * aspect * np.sin(phi), np.zeros((rings, segments))], -1)
-    return _polar_patch(pts, np.zeros(3))
+    return polar_patch(pts, np.zeros(3))
 
 
-@_y_up
+@y_up
 def bowl(seed: int = 0, rings: int = 20, segments: int = 64) -> trimesh.Trimesh:
     """An open bowl: a unit spherical cap around the -z pole, opening angle set by the seed (70-100 deg)."""
     rng = np.random.default_rng(seed)
@@ -263,10 +127,10 @@ def bowl(seed: int = 0, rings: int = 20, segments: int = 64) -> trimesh.Trimesh:
     squash = 1.0 + 0.15 * rng.uniform(-1, 1)
     pts = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi) * np.ones_like(phi),
                     -np.cos(theta) * squash * np.ones_like(phi)], -1)
-    return _polar_patch(pts, np.array([0.0, 0.0, -squash]))
+    return polar_patch(pts, np.array([0.0, 0.0, -squash]))
 
 
-@_y_up
+@y_up
 def open_cylinder(seed: int = 0, rows: int = 24, segments: int = 64) -> trimesh.Trimesh:
     """An open tube without caps (two boundary loops), with a seeded radius ripple along its height."""
     rng = np.random.default_rng(seed)
@@ -274,10 +138,10 @@ def open_cylinder(seed: int = 0, rows: int = 24, segments: int = 64) -> trimesh.
     phi = 2 * np.pi * np.arange(segments)[None] / segments
     r = 0.5 * (1.0 + 0.15 * np.sin(np.pi * h * rng.uniform(1, 3) + rng.uniform(0, 2 * np.pi)))
     pts = np.stack([r * np.cos(phi), r * np.sin(phi), h * np.ones_like(phi)], -1)
-    return trimesh.Trimesh(pts.reshape(-1, 3), _grid_faces(rows, segments, wrap_w=True), process=False)
+    return trimesh.Trimesh(pts.reshape(-1, 3), grid_faces(rows, segments, wrap_w=True), process=False)
 
 
-@_y_up
+@y_up
 def wavy_sheet(seed: int = 0, n: int = 48, holes: int = 3) -> trimesh.Trimesh:
     """An open wavy cloth sheet over [-1, 1]^2 with `holes` round holes (about 2 n^2 faces)."""
     rng = np.random.default_rng(seed)
@@ -285,7 +149,7 @@ def wavy_sheet(seed: int = 0, n: int = 48, holes: int = 3) -> trimesh.Trimesh:
     kx, ky = rng.uniform(1.5, 3.0, 2)
     z = 0.15 * np.sin(kx * x + rng.uniform(0, 2 * np.pi)) * np.cos(ky * y + rng.uniform(0, 2 * np.pi))
     verts = np.stack([x, y, z], -1).reshape(-1, 3)
-    faces = _grid_faces(n, n)
+    faces = grid_faces(n, n)
     centers: list[np.ndarray] = []
     radii: list[float] = []
     while len(centers) < holes:  # well-separated holes strictly inside the sheet, so it stays connected
@@ -302,7 +166,7 @@ def wavy_sheet(seed: int = 0, n: int = 48, holes: int = 3) -> trimesh.Trimesh:
     return m
 
 
-@_y_up
+@y_up
 def mobius(seed: int = 0, segments: int = 120, across: int = 8) -> trimesh.Trimesh:
     """An open, non-orientable Mobius strip (one boundary loop), width set by the seed."""
     rng = np.random.default_rng(seed)
@@ -312,11 +176,11 @@ def mobius(seed: int = 0, segments: int = 120, across: int = 8) -> trimesh.Trime
     r = 1.0 + s * np.cos(u / 2)
     pts = np.stack([r * np.cos(u), r * np.sin(u), s * np.sin(u / 2)], -1)
     pts[..., 2] *= 1.0 + 0.3 * rng.uniform(-1, 1)
-    return trimesh.Trimesh(pts.reshape(-1, 3), _grid_faces(segments, across, wrap_u=True, flip_u=True),
+    return trimesh.Trimesh(pts.reshape(-1, 3), grid_faces(segments, across, wrap_u=True, flip_u=True),
                            process=False)
 
 
-@_y_up
+@y_up
 def leaf(seed: int = 0, rings: int = 14, segments: int = 64) -> trimesh.Trimesh:
     """An open curved leaf with pointed tips along x in [-1, 1] (a lens-mapped disc, bent and folded)."""
     rng = np.random.default_rng(seed)
@@ -330,14 +194,14 @@ def leaf(seed: int = 0, rings: int = 14, segments: int = 64) -> trimesh.Trimesh:
     bend, fold = rng.uniform(0.1, 0.3), rng.uniform(0.5, 1.5)
     zz = bend * xs * xs + fold * yy * yy
     pts = np.stack([xs, yy, zz], -1)
-    return _polar_patch(pts, np.array([asym * 0.5, 0.0, bend * 0.25 * asym * asym]))
+    return polar_patch(pts, np.array([asym * 0.5, 0.0, bend * 0.25 * asym * asym]))
 
 
 # ----------------------------------------------------------------------------------------------------------
 # Mixed shapes (closed bodies + open attachments, as disjoint components)
 # ----------------------------------------------------------------------------------------------------------
 
-@_y_up
+@y_up
 def plant(seed: int = 0, leaves: int = 4) -> trimesh.Trimesh:
     """Mixed: a closed stem and a closed bud (closed) with `leaves` open leaves around the stem."""
     rng = np.random.default_rng(seed)
@@ -350,28 +214,28 @@ def plant(seed: int = 0, leaves: int = 4) -> trimesh.Trimesh:
         lf = leaf.__wrapped__(seed=int(rng.integers(1 << 31)), rings=8, segments=32)
         lf.apply_scale(0.3)
         lf.apply_translation([0.3 + stem_r + 0.02, 0, 0])  # base tip just off the stem surface
-        lf.apply_transform(_rotation([0, 1, 0], -np.radians(rng.uniform(20, 45))))  # tilt upwards
-        lf.apply_transform(_rotation([0, 0, 1], k * 2.39996 + rng.uniform(-0.3, 0.3)))  # golden angle
+        lf.apply_transform(rotation([0, 1, 0], -np.radians(rng.uniform(20, 45))))  # tilt upwards
+        lf.apply_transform(rotation([0, 0, 1], k * 2.39996 + rng.uniform(-0.3, 0.3)))  # golden angle
         lf.apply_translation([0, 0, -0.5 + 0.9 * (k + 0.5) / leaves])
         parts.append(lf)
-    return _concat(parts)
+    return concat(parts)
 
 
-@_y_up
+@y_up
 def mushroom(seed: int = 0) -> trimesh.Trimesh:
     """Mixed: a closed stalk (capsule) under an open cap (a spherical cap shell, no underside)."""
     rng = np.random.default_rng(seed)
     stalk_r = 0.15 * (1.0 + 0.2 * rng.uniform(-1, 1))
     stalk = trimesh.creation.capsule(height=0.8, radius=stalk_r, count=[16, 16])
     cap = bowl.__wrapped__(seed=int(rng.integers(1 << 31)), rings=14, segments=48)
-    cap.apply_transform(_rotation([1, 0, 0], np.pi))  # opening downwards
+    cap.apply_transform(rotation([1, 0, 0], np.pi))  # opening downwards
     cap.apply_scale(0.6 * (1.0 + 0.15 * rng.uniform(-1, 1)))
     top = cap.vertices[:, 2].max()
     cap.apply_translation([0, 0, 0.4 + stalk_r + 0.15 - top])
-    return _concat([stalk, cap])
+    return concat([stalk, cap])
 
 
-@_y_up
+@y_up
 def flag_box(seed: int = 0) -> trimesh.Trimesh:
     """Mixed: a closed box with a closed flagpole on top and an open, wavy flag on the pole."""
     rng = np.random.default_rng(seed)
@@ -384,12 +248,12 @@ def flag_box(seed: int = 0) -> trimesh.Trimesh:
     u, w = np.meshgrid(np.linspace(0, 0.7, nu), np.linspace(0, 0.4, nw), indexing="ij")
     amp, k = rng.uniform(0.03, 0.08), rng.uniform(6, 12)
     flag_pts = np.stack([u + pole_r + 0.01, amp * np.sin(k * u) * u / 0.7, w], -1).reshape(-1, 3)
-    flag = trimesh.Trimesh(flag_pts, _grid_faces(nu, nw), process=False)
+    flag = trimesh.Trimesh(flag_pts, grid_faces(nu, nw), process=False)
     flag.apply_translation([0, 0, size[2] / 2 + pole_h - 0.45])
-    return _concat([box, pole, flag])
+    return concat([box, pole, flag])
 
 
-@_y_up
+@y_up
 def lamp(seed: int = 0) -> trimesh.Trimesh:
     """Mixed: a closed base, pole and bulb under an open lampshade (a truncated cone without caps)."""
     rng = np.random.default_rng(seed)
@@ -405,11 +269,11 @@ def lamp(seed: int = 0) -> trimesh.Trimesh:
     r_bot, r_top = 0.45 * (1 + 0.1 * rng.uniform(-1, 1)), 0.25 * (1 + 0.1 * rng.uniform(-1, 1))
     r = r_bot + (r_top - r_bot) * h
     pts = np.stack([r * np.cos(phi), r * np.sin(phi), (0.2 + 0.45 * h) * np.ones_like(phi)], -1)
-    shade = trimesh.Trimesh(pts.reshape(-1, 3), _grid_faces(rows, segs, wrap_w=True), process=False)
-    return _concat([base, pole, bulb, shade])
+    shade = trimesh.Trimesh(pts.reshape(-1, 3), grid_faces(rows, segs, wrap_w=True), process=False)
+    return concat([base, pole, bulb, shade])
 
 
-@_y_up
+@y_up
 def tablecloth(seed: int = 0, n: int = 40) -> trimesh.Trimesh:
     """Mixed: a closed table (top + 4 legs, boxes) under an open cloth draped over its top."""
     rng = np.random.default_rng(seed)
@@ -427,8 +291,8 @@ def tablecloth(seed: int = 0, n: int = 40) -> trimesh.Trimesh:
     over = np.maximum(np.maximum(np.abs(x), np.abs(y)) - half, 0.0)
     ripple = 0.03 * np.sin(rng.uniform(8, 14) * np.arctan2(y, x)) * (over > 0)
     z = top_z + 0.01 - 1.5 * over + ripple * over / max(ext - half, 1e-9)
-    cloth = trimesh.Trimesh(np.stack([x, y, z], -1).reshape(-1, 3), _grid_faces(n, n), process=False)
-    return _concat(parts + [cloth])
+    cloth = trimesh.Trimesh(np.stack([x, y, z], -1).reshape(-1, 3), grid_faces(n, n), process=False)
+    return concat(parts + [cloth])
 
 
 #: name -> (class, generator); class is one of "closed", "open", "mixed".
@@ -473,6 +337,5 @@ def generate(name: str, seed: int = 0, **params) -> trimesh.Trimesh:
     return SHAPES[name][1](seed=seed, **params)
 
 
-# The smooth families of the test split register themselves in SHAPES (datasets/families.py); importing them
-# here, after everything they use is defined, makes either import order register them.
-from datasets import families as _families  # noqa: E402,F401
+# The smooth families of the test split (datasets/families.py), in the same registry.
+SHAPES.update(FAMILIES)

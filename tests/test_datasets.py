@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from datasets import families, meshes, normalize, sampling, synthetic
+from datasets.mesh_parts import concat
 from common import SHARED_MESHES, shared_mesh
 
 ALL_SHAPES = list(synthetic.SHAPES)
@@ -76,7 +77,7 @@ def test_classify_small_cases():
     tet = trimesh.creation.box()
     assert meshes.classify(tet) == "closed"
     assert meshes.classify(_quad_sheet()) == "open"
-    both = synthetic._concat([tet, _quad_sheet(5.0)])
+    both = concat([tet, _quad_sheet(5.0)])
     assert meshes.classify(both) == "mixed"
     # A fin glued to a closed box along a non-manifold edge: the box stays closed, the fin is open.
     box = trimesh.creation.box()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from common import shared_mesh
-from datasets import families, meshes, splits, synthetic
+from datasets import families, fine_mesh, meshes, splits, synthetic
 
 REPO = Path(__file__).resolve().parents[1]
 FAMILY_NAMES = list(families.FAMILIES)
@@ -84,7 +84,7 @@ def test_edge_split_keeps_a_closed_mesh_closed():
     import trimesh
 
     box = trimesh.creation.box(extents=[1.0, 0.5, 0.2])
-    out = families._split_long_edges(box, 0.1)
+    out = fine_mesh.split_long_edges(box, 0.1)
     assert out.is_watertight and out.edges_unique_length.max() <= 0.1
     assert np.isclose(out.volume, box.volume) and np.isclose(out.area, box.area)
 
