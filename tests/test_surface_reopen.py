@@ -144,3 +144,43 @@ def test_tet_fills_close_exactly_the_holes_left_open():
     faces = tet_fills(state)
     counts = edge_table(np.concatenate([state.closed, faces]))[2]
     assert len(faces) >= 3 and (counts == 2).all()
+
+
+@pytest.mark.parametrize("faired", [True, False])
+def test_fills_that_still_cross_are_faired_like_lids(monkeypatch, faired):
+    """Holes whose least-area fill crosses the surface and that no tet fill closes (here: every fill made to
+    cross, tet fills off) get their fill anyway, marked as lids so that stage fair refines, fairs and, if it
+    still crosses, drops it (`fills.faired`); without it they stay open."""
+    from common import ball_labels, cloud_diagram
+    from dmesh import solid
+    from dmesh.surface import STAGES, holes
+    from dmesh.surface.state import SurfaceState
+    from dmesh.surface.topology import edge_table
+
+    real = holes.fill_holes
+
+    def crossing_all(vertices, faces, max_edges, uncrossed=True, **kw):
+        if not uncrossed:
+            return real(vertices, faces, max_edges, uncrossed=False, **kw)
+        n = len(holes.hole_loops(np.asarray(faces)))
+        return np.zeros((0, 3), np.int64), 0, n, n
+
+    monkeypatch.setattr(holes, "fill_holes", crossing_all)
+    pd = cloud_diagram(n=1500, seed=4)
+    walls = solid.boundary_mask(pd, ball_labels(pd))
+    holed = walls.copy()
+    holed[np.flatnonzero(walls)[[0, 40, 80]]] = False
+    state = SurfaceState(pd, holed, mode="closed")
+    config = SurfaceConfig().with_overrides({"fills.tets": False, "fills.faired": faired})
+    for stage in STAGES[:4]:
+        state = stage.fn(state, getattr(config, stage.section) if stage.section else None)
+    before = len(state.closed)
+    state = holes.fills(state, config.fills)
+    added = len(state.closed) - before
+    assert state.info["holes_crossing"] >= 3
+    if faired:
+        assert state.info["faired_fills"] >= 3 and added == state.info["faired_fill_faces"] > 0
+        assert state.lid[before:].all() and state.fill[before:].all() and not state.lid[:before].any()
+        assert (edge_table(state.closed)[2] == 2).all()  # closed again
+    else:
+        assert added == 0 and (edge_table(state.closed)[2] == 1).sum() >= 9

@@ -26,7 +26,7 @@ DEFAULTS = {
     "revote": {"min_faces": 64, "max_open": 0.25, "max_boundary": 0.1},
     "pinches": {"rounds": 20},
     "lids": {"max_hole": 64},
-    "fills": {"max_hole": 64, "retries": 3, "tets": True, "tets_sheets": 1e-3},
+    "fills": {"max_hole": 64, "retries": 3, "tets": True, "tets_sheets": 1e-3, "faired": True},
     "spans": {"ratio": 6.0},
     "reopen": {"ratio": 2.0, "share": 0.5},
     "crumbs": {"max_faces": 4, "max_debris": 1e-3, "floating": 4.0, "beside": 0.05, "floating_max_faces": 64,

@@ -110,6 +110,8 @@ class Fills:
     tets: bool = True            # ... and then closed by the inside tets' boundary across it instead, where that
                                  # piece fits the hole (faces of the triangulation: they cross nothing)
     tets_sheets: float = 1e-3    # ... on a closed input only: sheets at most this fraction of all faces
+    faired: bool = True          # ... and a hole still open then gets its fill anyway, refined and faired like
+                                 # a lid (stage fair, which drops it if it still crosses a face); closed input only
 
     def __post_init__(self):
         _at_least(self, 0, "max_hole", "retries")

@@ -28,7 +28,9 @@ def lids(state, cfg):
 
 def fills(state, cfg):
     """The closed part's holes of at most `max_hole` edges get a least-area triangulation of their loop; a fill
-    crossing the surface is redone without its crossing triangles, then left open."""
+    crossing the surface is redone without its crossing triangles, then, on a closed input, closed by the inside
+    tets' boundary where that fits, else (`faired`) filled anyway and marked to be faired like a lid (stage fair
+    drops it if it still crosses)."""
     fill, filled, left, crossing = state.closed[:0], 0, 0, 0
     if len(state.closed):
         fill, filled, left, crossing = fill_holes(state.points, state.closed, cfg.max_hole, others=state.sheet,
@@ -40,9 +42,23 @@ def fills(state, cfg):
     closed_input = sheets <= cfg.tets_sheets * (sheets + len(state.closed))
     tets = tet_fills(state) if crossing and cfg.tets and closed_input else state.closed[:0]
     state.add_closed(tets, fill=True)
+    faired = faired_fills(state, cfg.max_hole) if crossing and cfg.faired and closed_input else state.closed[:0]
+    state.add_closed(faired, lid=True, fill=True)
     state.info.update(holes_filled=filled, hole_faces=int(len(fill)), holes_left=left, holes_crossing=crossing,
-                      tet_fills=edge_pieces(tets)[0] if len(tets) else 0, tet_fill_faces=int(len(tets)))
+                      tet_fills=edge_pieces(tets)[0] if len(tets) else 0, tet_fill_faces=int(len(tets)),
+                      faired_fills=edge_pieces(faired)[0] if len(faired) else 0, faired_fill_faces=int(len(faired)))
     return state
+
+
+def faired_fills(state, max_hole: int) -> np.ndarray:
+    """(K, 3) int64 least-area fills of the closed part's holes of at most `max_hole` edges still open, crossings
+    allowed: flat, a fill of a hole in a wall thinner than the sample spacing pokes through the wall's other side
+    (the test split's thin_cup); refined and faired (stage fair) it follows the wall, and where it still crosses,
+    fair drops it."""
+    loops = [loop for loop in hole_loops(state.closed) if len(loop) <= max_hole]
+    if not loops:
+        return state.closed[:0]
+    return fill_holes(state.points, state.closed, max_hole, uncrossed=False, loops=loops)[0]
 
 
 def tet_fills(state) -> np.ndarray:
@@ -287,5 +303,5 @@ def _stray_vertices(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, off
     return set(at[(variation < SURFACE_VARIATION) & (off > off_ratio * dist.mean(1))].tolist())
 
 
-__all__ = ["lids", "fills", "sheet_holes", "fill_loop", "fill_holes", "sampled_loops",
+__all__ = ["lids", "fills", "faired_fills", "sheet_holes", "fill_loop", "fill_holes", "sampled_loops",
            "sheet_hole_loops"]

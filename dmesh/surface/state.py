@@ -145,8 +145,8 @@ class Surface:
         closed: number of closed-part rows.
         info: counts, flat (the names docs/surface.md gives each stage: inside_tets, regions_dropped,
             sheets_set_aside, tets_flipped, closed_faces, lids, lid_faces, span_faces, holes_filled, hole_faces,
-            holes_left, holes_crossing, fins_dropped, crumbs_dropped, rim_edges, rim_faces, stacked_dropped,
-            sheet_holes_filled, sheet_hole_faces, sheet_holes_unsampled, seams_cut, split_vertices, folds_dropped,
+            holes_left, holes_crossing, tet_fills, tet_fill_faces, faired_fills, faired_fill_faces, fins_dropped,
+            crumbs_dropped, rim_edges, rim_faces, stacked_dropped, sheet_holes_filled, sheet_hole_faces, sheet_holes_unsampled, seams_cut, split_vertices, folds_dropped,
             closed_crumbs_dropped, lid_vertices_added, lids_faired, lids_dropped, sheet_faces; vote: "parity" or
             "winding"), and info["stages"]: per stage run, in order, its closed and sheet faces after it, the
             faces it added and dropped, its seconds and the counts it set.
