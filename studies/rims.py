@@ -35,12 +35,14 @@ METHODS = ("dmesh", "bpa", "psr", "alpha_wrap", "sdf_mc", "udf_mc", "voromesh")
 
 def _runs(split: str, shapes: tuple[str, ...] | None) -> list:
     """The point-cloud runs of `split`'s sweep, each under its current key (adopted where its code is unchanged)."""
+    from eval.inputs import resolve_and_prepare_shapes
     from eval.store import Store
     from eval.stored import adopt_current
     from eval.sweep import Sweep, expand
 
     sweep = Sweep.from_yaml(SWEEPS[split])
-    runs = [r for r in expand(sweep) if r.input_kind == "pointcloud" and r.method in METHODS
+    refs, _ = resolve_and_prepare_shapes(sweep, WORK)  # a mesh file's class comes from its GT
+    runs = [r for r in expand(sweep, refs) if r.input_kind == "pointcloud" and r.method in METHODS
             and r.shape.category in ("open", "mixed") and (shapes is None or r.shape.id in shapes)]
     with Store(WORK / "results.sqlite", readonly=True) as store:
         return [(r, store.get(r.key)) for r in adopt_current(runs, store)]
