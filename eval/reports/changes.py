@@ -10,7 +10,7 @@ regression too):
     after    the results store of a work folder, or an export file (default: the working tree's export)
 
 `dmesh changes --since REV` writes `reports/changes.{md,csv}` and prints the worst rows. The default
-tolerance sits above CD p2s's own sampling noise on the Table 2 meshes (`python -m eval.bench metric_noise`).
+tolerance sits above CD p2s's own sampling noise on the Table 2 meshes (`python -m studies metric_noise`).
 """
 from __future__ import annotations
 
@@ -104,7 +104,7 @@ def changes_markdown(rows: list[dict], counts: dict, metric: str, tolerance: flo
     lines = [f"# What moved: {metric}, {before} -> {after}", "",
              f"Each configuration's latest finished run in {after} against its latest in {before} "
              f"(`eval.reports.changes`). Listed: {metric} worse or better by more than {tolerance:.0%} "
-             "(CD p2s's own sampling noise: `reports/bench_metric_noise.md`), and runs that failed or "
+             "(CD p2s's own sampling noise: `studies/reports/metric_noise.md`), and runs that failed or "
              "succeeded where they had not. "
              "*ratio*: after / before; *code*: the code version of each run (equal: the metric or the "
              "machine moved, not the method).", "",

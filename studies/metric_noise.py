@@ -3,12 +3,12 @@
 The harness's CD p2s (`eval.metrics.chamfer_l1_p2s`) is a mean over random samples of both surfaces (100K per
 side in every sweep). A mesh with spikes (a face up to a stray point that an outlier filter kept) has a long
 tail of far samples, and a mean over such a tail moves with the samples drawn. For the latest stored run of
-each method on some robustness inputs whose mesh the store keeps (`runs/paper`), this bench measures the same
+each method on some robustness inputs whose mesh the store keeps (`runs/paper`), this study measures the same
 mesh against the same GT with 5 sampling seeds at 100K samples and 2 seeds at 1M: `stored` is the sweep's own
 figure (seed 0, 100K), `sd_pct` the standard deviation over the 100K seeds as a percentage of their mean.
 CD p2s x1e-3.
 
-Regenerate: `python -m eval.bench metric_noise` (about 10 minutes; needs the robustness sweep's runs in
+Regenerate: `python -m studies metric_noise` (about 10 minutes; needs the robustness sweep's runs in
 `runs/paper`; `--quick`: the bowl with 10 % outliers only, 100K samples only).
 """
 from __future__ import annotations
@@ -76,17 +76,17 @@ def _rows(quick: bool) -> list[dict]:
     return out
 
 
-def main(out: str = "reports", quick: bool = False) -> None:
+def main(out: str = "studies/reports", quick: bool = False) -> None:
     rows = _rows(quick)
     if not rows:  # the committed report stays as it is
-        print(f"bench metric_noise: no stored robustness runs in {WORK} (run `dmesh robustness` first)", flush=True)
+        print(f"study metric_noise: no stored robustness runs in {WORK} (run `dmesh robustness` first)", flush=True)
         return
     cols = ["shape", "input", "method", "stored", "mean_100k", "min_100k", "max_100k", "sd_pct"]
     cols += [] if quick else ["cd_1m_a", "cd_1m_b"]
     fmt = {c: ".4f" for c in cols[3:]}
     fmt["sd_pct"] = ".1f"
     intro = __doc__.split("\n\n", 1)[1].rsplit("Regenerate", 1)[0].strip()
-    write_report(out, "bench_metric_noise", "Sampling noise of CD p2s", intro, markdown_table(rows, cols, fmt), rows)
+    write_report(out, "metric_noise", "Sampling noise of CD p2s", intro, markdown_table(rows, cols, fmt), rows)
 
 
 if __name__ == "__main__":
