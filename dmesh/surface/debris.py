@@ -35,10 +35,9 @@ def fins(state, cfg):
 def fin_faces(sheet: np.ndarray, closed: np.ndarray) -> np.ndarray:
     """(S,) bool: faces of `sheet` with an edge that two or more faces of `closed` share.
 
-    Why not every sheet face on a closed-part edge: where the vote left part of an open shape outside (the
-    stretch of a tube near its cut end, whose walks escape through the end), the shape's surface runs on from
-    the closed part's rim as a sheet; dropping its first row cut the tube into pieces, each with two rims (the
-    test split's vessel: 42 pieces, boundary 6.8x the GT's length; kept: 1 piece, 1.06x).
+    Why not every sheet face on a closed-part edge: where the vote left part of an open shape outside (a tube
+    near its cut end, whose walks escape through the end), the surface runs on from the closed part's rim as a
+    sheet, and dropping its first row would cut the tube into pieces (docs/surface.md, stage 9).
     """
     sheet = np.asarray(sheet, dtype=np.int64)
     if len(sheet) == 0 or len(closed) == 0:
