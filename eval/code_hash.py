@@ -6,9 +6,10 @@ included) and the version of the inputs (`INPUT_VERSION`), so editing one baseli
 stored runs. A run depends on its input's data, not on the text of the code that generated it: the harness
 caches each input by shape, settings and `INPUT_VERSION` (`eval.inputs`), never by that code, so a refactor of
 the input generation reruns nothing, and a change to what it generates bumps `INPUT_VERSION`
-(tests/test_input_version.py holds fingerprints of generated inputs and fails until it is bumped). The metric
-code is versioned apart (`metrics_version`, in each run's metrics, not in its key: `dmesh rescore` scores a
-stored mesh again), and so is `eval.preprocess` (`preprocess_version`, in the settings of a pre-processed or
+(tests/test_input_version.py holds fingerprints of generated inputs and fails until it is bumped). The metrics
+are versioned apart, the same way, by what they compute (`METRICS_VERSION`, in each run's metrics, not in its
+key: `dmesh rescore` scores a stored mesh again; tests/test_metrics_version.py holds fingerprints of the
+metrics of fixed meshes), and so is `eval.preprocess` (`preprocess_version`, in the settings of a pre-processed or
 lifted input). Hashes are over each Python file's syntax tree without docstrings (`code_text`), so comments,
 docstrings and layout change no key. `eval.code_deps` narrows a code version to the code a run executed;
 `eval.sweep` puts the code version into every run's key.
@@ -30,10 +31,20 @@ REPO = Path(__file__).resolve().parents[1]
 #: generated input that differs from its fingerprint at this version. (2: inside-out closed GTs flipped outward.)
 INPUT_VERSION = 2
 #: The input generation: the modules whose output `INPUT_VERSION` versions (tests/test_input_version.py).
-INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.sampling",
-                 "datasets.capture", "datasets.corrupt", "datasets.scan")
-#: The metrics of a run. Not in its key: a stored mesh is scored again under new metric code without
-#: rerunning its method (`dmesh rescore`); each run's metrics carry the `metrics_version` that made them.
+INPUT_MODULES = ("datasets.synthetic", "datasets.normalize", "datasets.meshes", "datasets.mesh_files",
+                 "datasets.sampling", "datasets.capture", "datasets.corrupt", "datasets.scan")
+#: Version of the metrics a run's mesh is scored with (`eval.metrics.compute_metrics`, `METRIC_MODULES` and the
+#: project code they import). Not in a run's key: a stored mesh is scored again under new metrics without
+#: rerunning its method (`dmesh rescore`); each run's metrics carry the `metrics_version` that made them. Bump it
+#: with any change to what the metrics compute for the same meshes; a change that computes the same figures (a
+#: refactor, a module split) keeps it. tests/test_metrics_version.py fails on metrics of fixed meshes that differ
+#: from their fingerprints at this version.
+METRICS_VERSION = 1
+#: The metric code's hashes under which the figures of a METRICS_VERSION were computed, before the metrics were
+#: versioned by what they compute (a run's metrics carried the hash of the metric code's files): those runs'
+#: figures are the version's. dc0ea2e4fcf4f59f: the metric code of commit 2441970, fingerprinted as version 1.
+METRICS_HASHES = {"dc0ea2e4fcf4f59f": 1}
+#: The metric modules: the code whose output `METRICS_VERSION` versions.
 METRIC_MODULES = ("eval.metrics", "eval.closest_point")
 #: Packages of this repository whose modules a run's code version follows through imports.
 PROJECT_PACKAGES = ("dmesh", "baselines", "datasets", "eval")
@@ -163,7 +174,7 @@ def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
     """The sources a method's results depend on: its own `code_trees` attribute if it has one, else the files of
     its module and of the project modules it imports (`module_closure`). So editing one baseline, or the harness
     around the runs, reruns no other method's stored runs; editing the metrics reruns nothing
-    (`metrics_version`), and the inputs are versioned by `INPUT_VERSION`."""
+    (`METRICS_VERSION`), and the inputs are versioned by `INPUT_VERSION`."""
     own = getattr(method, "code_trees", None)
     if own:
         return tuple(own)
@@ -173,9 +184,17 @@ def method_trees(method, root: str | Path = REPO) -> tuple[str, ...]:
     return module_closure(roots, str(root))
 
 
-def metrics_version(root: str | Path = REPO) -> str:
-    """The first 16 hex digits of the hash of the metric code (`METRIC_MODULES` and what they import)."""
-    return source_hash(module_closure(METRIC_MODULES, str(root)), root)[:16]
+def metrics_version() -> str:
+    """The version of the metrics, as each run's metrics record it: "metrics-v" + `METRICS_VERSION`."""
+    return f"metrics-v{METRICS_VERSION}"
+
+
+def metrics_current(version) -> bool:
+    """Whether metrics recorded with `metrics_version` `version` are the current metrics' figures: the current
+    version, or a hash of the metric code that computed them (`METRICS_HASHES`). False for None (runs stored
+    before their metrics carried a version)."""
+    return version == metrics_version() or (isinstance(version, str)
+                                            and METRICS_HASHES.get(version) == METRICS_VERSION)
 
 
 def code_version(method, root: str | Path = REPO) -> str:

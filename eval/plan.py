@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from eval.store import Store
-from eval.stored import adopt, is_stored, metrics_now
+from eval.stored import adopt, is_stored
 from eval.sweep import Sweep, expand
 
 
@@ -81,9 +81,8 @@ def plan_sweep(sweep: Sweep, runner) -> SweepPlan:
                                 row["inputs_json"], int(row["seed"])], sort_keys=True, default=str)
             if ident not in walls or row["started_at"] > walls[ident][0]:
                 walls[ident] = (row["started_at"], wall)
-        now = metrics_now(runner)
         for spec in runs:
-            if is_stored(store.get(spec.key), runner, now):
+            if is_stored(store.get(spec.key), runner):
                 plan.stored += 1
                 continue
             plan.pending += 1

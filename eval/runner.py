@@ -68,7 +68,7 @@ from eval.local_executor import run_local
 from eval.outcomes import Outcomes
 from eval.plain import one_line
 from eval.store import LEASE_S, Lease, Store
-from eval.stored import RERUN_MODES, adopt, is_stored, metrics_now, migrate_records
+from eval.stored import RERUN_MODES, adopt, is_stored, migrate_records
 from eval.sweep import Sweep, expand, get_method
 # Re-exported: callers import these from here.
 from eval.execute import (MONITOR_SAMPLES, checkpoint_path, drop_checkpoint, execute_run,  # noqa: F401
@@ -185,10 +185,9 @@ def run_sweep(sweep: Sweep, runner: RunnerConfig) -> SweepSummary:
         runs, kept = adopt(expand(sweep, shapes), store, runner)
         summary = SweepSummary(total=len(runs), kept=kept, db=str(runner.db_path), keys=[r.key for r in runs])
         pending, retry_attempts = [], {}
-        now = metrics_now(runner)
         for spec in runs:
             row = store.get(spec.key)
-            if is_stored(row, runner, now):
+            if is_stored(row, runner):
                 summary.skipped += 1
                 continue
             if row is not None and row["status"] in ("done", "failed"):  # run again only if no other sweep

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 
 from eval import code_deps
-from eval.code_hash import metrics_version
+from eval.code_hash import metrics_current
 from eval.store import Store
 from eval.sweep import RunSpec
 
@@ -19,12 +19,12 @@ from eval.sweep import RunSpec
 RERUN_MODES = (None, "all", "stale-metrics")
 
 
-def is_stored(row: dict | None, runner, metrics_now: str | None = None) -> bool:
+def is_stored(row: dict | None, runner) -> bool:
     """Whether a sweep skips the run whose store row is `row`: done (unless `runner.rerun` asks for it again),
     or failed (unless failures are retried, or `rerun` is "all").
 
-    `rerun="stale-metrics"` reruns the done runs scored by another metric code than `metrics_now` (the
-    current `metrics_version`): what `dmesh rescore` cannot reach when a run's mesh is not on disk.
+    `rerun="stale-metrics"` reruns the done runs scored by other metrics than the current ones
+    (`eval.code_hash.metrics_current`): what `dmesh rescore` cannot reach when a run's mesh is not on disk.
     """
     status = None if row is None else row["status"]
     if status == "failed":
@@ -34,14 +34,8 @@ def is_stored(row: dict | None, runner, metrics_now: str | None = None) -> bool:
     if runner.rerun == "all":
         return False
     if runner.rerun == "stale-metrics":
-        return (row.get("metrics_json") or {}).get("metrics_version") == metrics_now
+        return metrics_current((row.get("metrics_json") or {}).get("metrics_version"))
     return True
-
-
-def metrics_now(runner) -> str | None:
-    """The current metrics version when `runner` (an `eval.runner.RunnerConfig`) reruns runs by it, else None
-    (not computed)."""
-    return metrics_version() if runner.rerun == "stale-metrics" else None
 
 
 def adopt_current(runs: list[RunSpec], store: Store) -> list[RunSpec]:

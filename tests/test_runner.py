@@ -144,7 +144,7 @@ def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
     methods follow the library and native code; an edit of datasets/ changes none, a new INPUT_VERSION all."""
     import shutil
 
-    from eval.code_hash import INPUT_VERSION
+    from eval.code_hash import INPUT_VERSION, METRICS_VERSION, metrics_current
     from eval.sweep import (REPO, _source_hash, code_version, get_method, method_trees, metrics_version,
                             module_closure)
 
@@ -171,14 +171,19 @@ def test_a_runs_code_version_follows_its_own_method_only(tmp_path):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr("eval.code_hash.INPUT_VERSION", INPUT_VERSION + 1)
         assert all(code_version(m, tmp_path) != after[m.name] for m in (psr, bpa, dm))
-    # An edit of the metrics reruns no method: it changes the metrics version only (`dmesh rescore`).
+    # An edit of the metrics reruns no method; what they compute is versioned by METRICS_VERSION
+    # (tests/test_metrics_version.py), which a new version changes and nothing else does (`dmesh rescore`).
     versions = {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)}
-    scored = metrics_version(tmp_path)
+    scored = metrics_version()
     with open(tmp_path / "eval" / "metrics.py", "a") as f:
         f.write("\nEDITED = 1\n")
     _source_hash.cache_clear()
     assert {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)} == versions
-    assert metrics_version(tmp_path) != scored
+    assert metrics_version() == scored
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr("eval.code_hash.METRICS_VERSION", METRICS_VERSION + 1)
+        assert metrics_version() != scored and not metrics_current(scored)
+        assert {m.name: code_version(m, tmp_path) for m in (psr, bpa, dm)} == versions
 
 
 def test_sweep_yaml_round_trip_and_validation(tmp_path):

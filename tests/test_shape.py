@@ -13,16 +13,9 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("eval", "datasets", "baselines")
 MAX_MODULE_LINES = 500
 MAX_FUNCTION_LINES = 120
-#: Modules allowed over MAX_MODULE_LINES, and why. Each is hashed whole into what identifies stored results, so
-#: moving its code into other files changes every stored run's metrics version even when no behaviour changes;
-#: each splits together with the next full rescore that pays for it.
-LONG_MODULES = {
-    # The metric code (`eval.code_hash.METRIC_MODULES` and what it imports: datasets/meshes.py too): its files
-    # are hashed into `metrics_version`, so splitting one marks every stored run's metrics as earlier ones until
-    # `dmesh rescore` recomputes them all.
-    "datasets/meshes.py": "imported by the metric code, in every run's metrics version: splits with the next rescore",
-    "eval/metrics.py": "metric code, in every run's metrics version: splits with the next full rescore",
-}
+#: Modules allowed over MAX_MODULE_LINES, and why (none: the metric code, which was hashed whole into every
+#: run's metrics version, is versioned by what it computes now, `eval.code_hash.METRICS_VERSION`).
+LONG_MODULES: dict[str, str] = {}
 
 
 def _sources() -> list[Path]:

@@ -44,14 +44,13 @@ def run(args) -> int:
     from eval.execute import resolve_mesh_path, score
     from eval.inputs import load_gt
     from eval.store import Store, check_store
-    from eval.code_hash import metrics_version
+    from eval.code_hash import metrics_current, metrics_version
 
     work = Path(args.work)
     db = Path(args.db) if args.db else work / "results.sqlite"
     if not db.is_file():
         raise FileNotFoundError(f"no results store at {db}: give --work or --db")
     check_store(db, write=not args.plan)  # before any run is scored: a store it could not write back to
-    current = metrics_version()
     todo, no_mesh, scored = [], 0, 0
     with Store(db, readonly=args.plan) as store:
         for row in store.rows(status="done"):
@@ -59,7 +58,7 @@ def run(args) -> int:
                     or (args.shapes and row["shape"] not in args.shapes)
                     or (args.input_kind and row["input_kind"] != args.input_kind)):
                 continue
-            if not args.all and (row.get("metrics_json") or {}).get("metrics_version") == current:
+            if not args.all and metrics_current((row.get("metrics_json") or {}).get("metrics_version")):
                 scored += 1
                 continue
             mesh = resolve_mesh_path(row, db)
@@ -68,7 +67,7 @@ def run(args) -> int:
                 no_mesh += 1
                 continue
             todo.append((row, mesh, gt))
-        print(f"metrics version {current}: {len(todo)} runs to score, {scored} already scored by it, "
+        print(f"metrics version {metrics_version()}: {len(todo)} runs to score, {scored} already scored by it, "
               f"{no_mesh} without their mesh or GT on disk (kept as they are"
               + ("; `dmesh bench SWEEP --rerun stale-metrics` runs them again)" if no_mesh else ")"))
         if args.plan:

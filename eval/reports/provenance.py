@@ -7,7 +7,7 @@ visible here, per table row, so a table never mixes two versions of the code sil
 
     earlier code       runs whose `code_version` is not the method's sources' now (`eval.sweep.code_version`)
                        and whose executed code changed since (`eval.code_deps.fresh`)
-    earlier metrics    done runs whose `metrics_version` is not the metric code's now (or that carry none)
+    earlier metrics    done runs whose `metrics_version` is not the current metrics version (or that carry none)
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
     `label(r)` names a row (default: the method and its config label, as Table 2 shows them).
     """
     from eval.reports.recipes import current_code_version, made_by_earlier_code
-    from eval.code_hash import metrics_version
+    from eval.code_hash import metrics_current
 
     if df is None or not len(df):
         return []
@@ -44,7 +44,6 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
         sub = sub[sub["input_kind"] == input_kind]
     if not len(sub):
         return []
-    metrics_now = metrics_version()
     code_now = {m: current_code_version(m) for m in set(sub["method"])}
     rows: dict[str, dict] = {}
     for _, r in sub.iterrows():
@@ -54,7 +53,7 @@ def provenance_rows(df, input_kind: str | None = None, label=None) -> list[dict]
         if made_by_earlier_code(r, code_now[r["method"]]):
             row["earlier_code"] += 1
         version = r.get("metrics_version")
-        if r["status"] == "done" and (not isinstance(version, str) or version != metrics_now):
+        if r["status"] == "done" and not metrics_current(version if isinstance(version, str) else None):
             row["earlier_metrics"] += 1
     return sorted(rows.values(), key=lambda x: x["method"])
 
