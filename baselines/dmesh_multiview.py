@@ -7,6 +7,15 @@ preset. Pass an instance (e.g. `MultiViewConfig.paper()`), or a mapping of field
 `"preset": "paper" | "fast" | "depth" | "tiny"` naming the base they apply to (as for `DMeshPointCloud`). The
 reports show this method as `dmesh` in the multi-view table (`eval.reports.tables.DISPLAY_NAMES`), and its
 `depth` preset (DMesh's point-cloud fit to the lifted depth pixels) as `dmesh [preset=depth]`.
+
+No private filter (DESIGN.md 8.5), as for the point-cloud method: the depth start's own input filters (the
+point-cloud preset's outlier removal and smoothing, the smoothing of noisy pixels from the pool of all pixels, the
+redo of a shredded mesh) are off in every config this method resolves (`MultiViewConfig.init_filters` False), so
+the `depth` and `refine` rows start from the pixels as lifted, like every point-cloud method's `[lifted-depth]` row
+(`lift_depth: true` in a sweep). Filtered pixels are the harness's stage: the rows `dmesh [lifted-depth,
++outliers+smooth]` run DMesh's point-cloud fit on the lifted pixels after it. Asking this method for the filters
+(`init_filters: true`, `init_preset: noisy`) is a ValueError naming that row. The library and `dmesh reconstruct`
+keep them.
 """
 from __future__ import annotations
 
@@ -28,8 +37,18 @@ class DMeshMultiView(DMeshPointCloud):
         return MultiViewConfig.fast()
 
     def resolve_config(self, config):
-        """`Method.resolve_config` (the point-cloud method's harness filters are `PointCloudConfig` fields)."""
-        return Method.resolve_config(self, config)
+        """`Method.resolve_config` with the depth start's own input filters off (`init_filters` False); a mapping
+        of overrides that asks for them is a ValueError (module docstring)."""
+        import dataclasses
+
+        if config is not None and not dataclasses.is_dataclass(config):
+            overrides = dict(config)
+            if overrides.get("init_filters", False) or overrides.get("init_preset") == "noisy":
+                raise ValueError(f"{self.name}: init_filters / init_preset=noisy would filter the lifted depth pixels "
+                                 f"by DMesh itself; in the harness that is the pre-processing stage every method "
+                                 f"gets: lift_depth: true and preprocess: [outliers+smooth] in the sweep (rows "
+                                 f"dmesh [lifted-depth,+outliers+smooth])")
+        return dataclasses.replace(Method.resolve_config(self, config), init_filters=False)
 
     def prepare(self) -> None:
         import dmesh.recon.multiview  # noqa: F401  (imports torch and the native module before timing)

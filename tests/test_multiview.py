@@ -360,6 +360,43 @@ def test_depth_start_fit_is_oriented_so_its_shred_check_counts_the_surface(spher
 
 
 @needs_gl
+def test_the_harness_depth_start_takes_the_pixels_as_lifted(sphere_views, one_thread, monkeypatch):
+    """No private filter in the harness (DESIGN.md 8.5): `dmesh_mv` resolves every config with
+    `init_filters` False, so on noisy depth the start neither pools nor smooths, and its point-cloud fit runs with
+    every input filter off (`UNFILTERED`), as the point-cloud `dmesh [lifted-depth]` row does; asking the method
+    for the filters names the harness's stage instead. The library keeps them (`init_filters` True)."""
+    from baselines.registry import get_method
+    from datasets.corrupt import add_depth_noise
+    from dmesh.recon import pointcloud
+    from dmesh.recon.multiview import UNFILTERED
+
+    method = get_method("dmesh_mv")
+    for preset in ("depth", "refine", "fast"):
+        assert method.resolve_config({"preset": preset}).init_filters is False
+    assert MultiViewConfig.depth().init_filters is True
+    for asked in ({"preset": "depth", "init_preset": "noisy"}, {"preset": "depth", "init_filters": True}):
+        with pytest.raises(ValueError, match="preprocess: \\[outliers\\+smooth\\]"):
+            method.resolve_config(asked)
+    with pytest.raises(ValueError, match="init_filters"):
+        MultiViewConfig.depth(init_filters=False, init_preset="noisy")
+
+    seen, original = [], pointcloud.reconstruct
+
+    def spy(points, normals=None, config=None, **kw):
+        seen.append(config)
+        return original(points, normals, config, **kw)
+
+    monkeypatch.setattr(pointcloud, "reconstruct", spy)
+    noisy = add_depth_noise(sphere_views, 0.02, seed=0)
+    cfg = method.resolve_config({"preset": "depth", "init_points": 5000})
+    res = reconstruct(noisy, cfg)
+    start = res.info["init_depth"]
+    assert start["preset"] == "fast" and start["pool_k"] == 0 and start["filters"] is False
+    assert all(getattr(seen[0], k) == v for k, v in UNFILTERED.items())
+    assert not res.info.get("fragmented_attempt") and "redone" in start and not start["redone"]
+
+
+@needs_gl
 def test_noisy_depth_start_fits_the_subset_from_every_pixel(sphere, sphere_views, one_thread):
     """With depth noise the "auto" start fits its points from all the lifted pixels and takes the point-cloud
     `fast` preset; its mesh is closer to the sphere than the start that smooths the subset alone

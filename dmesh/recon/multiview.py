@@ -99,6 +99,12 @@ class MultiViewResult(ReconstructionResult):
 
 # ------------------------------------------------------------------------------------------------- starts
 
+#: The point-cloud config fields of the depth start's own input filters, at the values that turn them off
+#: (`MultiViewConfig.init_filters` False): outlier removal, jet smoothing, the noise-triggered smoothing and the
+#: redo of a shredded mesh from smoothed input.
+UNFILTERED = {"outlier_std": 0.0, "smooth_k": 0, "auto_smooth_k": 0, "redo_fragmented": 0.0}
+
+
 def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: MultiViewConfig,
                rng: np.random.Generator, info: dict):
     """Epoch 0's DMesh from the depth pixels (`init="depth"`; not upstream): `cfg.init_points` of the lifted
@@ -109,7 +115,8 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid start refined
     through the images (see `MultiViewConfig.depth`).
 
-    "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), each of its
+    With `cfg.init_filters` False the pixels go as lifted: the preset's own filters are off (`UNFILTERED`) and
+    "auto" is `fast` without the pooled smoothing. Otherwise "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), each of its
     points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the lifted pixels
     (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
     the subset, and the fit averages that many more noisy depths over the same patch than the point-cloud
@@ -123,8 +130,11 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     pts = pixels
     if len(pts) > cfg.init_points:
         pts = pts[np.sort(rng.choice(len(pts), int(cfg.init_points), replace=False))]
-    preset, ratio = depth_start_preset(pts, cfg.init_preset)
-    pooled = cfg.init_preset == "auto" and preset == "noisy" and cfg.init_pool_k > 0
+    if cfg.init_filters:
+        preset, ratio = depth_start_preset(pts, cfg.init_preset)
+    else:
+        preset, ratio = ("fast" if cfg.init_preset == "auto" else cfg.init_preset), None
+    pooled = cfg.init_filters and cfg.init_preset == "auto" and preset == "noisy" and cfg.init_pool_k > 0
     if pooled:
         k = min(int(cfg.init_pool_k), len(pixels))
         log.info("depth start: the %d points fitted from their %d nearest of %d lifted pixels", len(pts), k,
@@ -133,13 +143,13 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     # Its mesh is not used, but it is oriented: the preset's check for a shredded mesh (`redo_fragmented`) then
     # counts the boundary edges of the oriented surface, as on point clouds (the raw extraction of a shredded
     # sheet counts fewer).
-    pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=True)
+    pc_cfg = PointCloudConfig.preset(preset, seed=cfg.seed, orient=True, **({} if cfg.init_filters else UNFILTERED))
     fit = reconstruct_points(pts, None, pc_cfg)
     dm = fit.dmesh
     back = 1.0 / fit.scale
     points = np.clip(dm.points.detach().double().numpy() * back + fit.center, -box, box)
     info["init_depth"] = {"lifted_points": int(len(pts)), "points": len(dm), "faces": int(len(fit.mesh.faces)),
-                          "seconds": fit.timings.get("total"), "preset": preset, "noise_ratio": ratio,
+                          "seconds": fit.timings.get("total"), "preset": preset, "filters": bool(cfg.init_filters), "noise_ratio": ratio,
                           "pool_k": k if pooled else 0, "pixels": int(len(pixels)),
                           "redone": "fragmented_attempt" in fit.info}
     return DMesh(points, dm.weights.detach().double().numpy() * back**2, dm.reals.detach().double().numpy(),

@@ -54,6 +54,11 @@ class MultiViewConfig(Presets):
     init_pooled_preset: str = "fast"  # ... then this point-cloud preset: "fast" (smooths again only points that
                                      # still look noisy or give a shredded mesh) or "noisy" (always smooths
                                      # again, 20K seeds); which when: python -m studies noisy_depth_start
+    init_filters: bool = True        # "depth": the start's own input filters (the point-cloud preset's outlier
+                                     # removal, noise-triggered smoothing and redo of a shredded mesh, and the
+                                     # pooled smoothing above); False: none, the pixels as lifted ("auto" is
+                                     # then "fast"; the harness's rows, where filtering is its own stage:
+                                     # docs/preprocessing.md)
     grid: int = 20                   # epoch 0: grid^3 real points
     grid_extent: float = 1.25        # ... at the cell centres of [-grid_extent, grid_extent]^3
     refine_seeds: tuple = (1000, 3000, 10_000)  # seeds of epochs 1, 2, ... (one epoch each)
@@ -151,6 +156,9 @@ class MultiViewConfig(Presets):
         if self.init_preset not in ("auto",) + POINTCLOUD_PRESETS:
             raise ValueError(f"MultiViewConfig.init_preset must be one of {('auto',) + POINTCLOUD_PRESETS}, "
                              f"got {self.init_preset!r}")
+        if not self.init_filters and self.init_preset == "noisy":
+            raise ValueError("MultiViewConfig.init_preset 'noisy' smooths the lifted pixels, which init_filters "
+                             "False leaves as they are; take 'fast' (or 'auto'), or init_filters True")
         if self.interior not in INTERIOR_MODES:
             raise ValueError(f"MultiViewConfig.interior must be one of {INTERIOR_MODES}, got {self.interior!r}")
         if not 0.0 <= self.threshold < 1.0:

@@ -5,9 +5,9 @@ By default three sweeps run into the store of `dmesh reproduce-tables` (runs/pap
 committed export, `reports/store/runs.jsonl.gz`) is behind every report: `eval/sweeps/robustness.yaml` (point
 clouds: each corruption level by itself, and a realistic scan), `robustness_budget.yaml` (each method at
 several output sizes on the clean input) and `robustness_multiview.yaml` (depth noise, fewer views, fewer
-pixels). DMesh's default presets smooth noisy input by themselves, so the sweeps that force the smoothing
-(`robustness_noisy.yaml`, `robustness_multiview_noisy.yaml`) are studies, run with `--sweep`. `--quick` runs `robustness_small.yaml` instead (the CI subset, a few minutes) into
-runs/robustness_quick and out/robustness_quick. Methods a sweep names that are not registered are left out
+pixels). DMesh filters nothing by itself in the harness; the sweep that gives every method the harness's
+smoothing on every noisy input (`robustness_noisy.yaml`) is a study, run with `--sweep`. `--quick` runs
+`robustness_small.yaml` instead (the CI subset, a few minutes) into runs/robustness_quick and out/robustness_quick. Methods a sweep names that are not registered are left out
 with a warning. Resumable like every sweep; `--report-only` runs nothing.
 """
 from __future__ import annotations
