@@ -107,22 +107,17 @@ UNFILTERED = {"outlier_std": 0.0, "smooth_k": 0, "auto_smooth_k": 0, "redo_fragm
 
 def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: MultiViewConfig,
                rng: np.random.Generator, info: dict):
-    """Epoch 0's DMesh from the depth pixels (`init="depth"`; not upstream): `cfg.init_points` of the lifted
-    mask pixels (a random subset, normalised frame) go through the point-cloud reconstruction
-    (`dmesh.recon.pointcloud.reconstruct`, preset `cfg.init_preset`), and its DMesh is mapped into this frame
-    (positions by the similarity, weights by its squared scale, so the power diagram is the same) with every
-    point clipped into the box. The depth images are half of the multi-view input; lifted, they are a point
-    cloud on the captured surface, and DMesh's point-cloud fit is far closer to it than the grid start refined
-    through the images (see `MultiViewConfig.depth`).
+    """Epoch 0's DMesh from the depth pixels (`init="depth"`; not upstream): `cfg.init_points` of the lifted mask
+    pixels (a random subset, normalised frame) go through DMesh's point-cloud fit (preset `cfg.init_preset`),
+    far closer to the captured surface than the grid start refined through the images (`MultiViewConfig.depth`),
+    and its DMesh is mapped into this frame (positions by the similarity, weights by its squared scale: the same
+    power diagram), every point clipped into the box.
 
-    With `cfg.init_filters` False the pixels go as lifted: the preset's own filters are off (`UNFILTERED`) and
-    "auto" is `fast` without the pooled smoothing. Otherwise "auto" takes the point-cloud `fast` preset; when the subset looks noisy (`depth_start_preset`), each of its
+    "auto" takes the point-cloud `fast` preset. When the subset looks noisy (`depth_start_preset`), each of its
     points is first moved onto the jet fitted to its `cfg.init_pool_k` nearest of all the lifted pixels
-    (`smooth_from_pool`): the views overlap, so the pixels sample the surface many times more densely than
-    the subset, and the fit averages that many more noisy depths over the same patch than the point-cloud
-    `noisy` preset's smoothing of the subset alone (which "auto" takes when `init_pool_k` is 0). The pooled
-    points then go to `cfg.init_pooled_preset` ("fast": smoothed again only if they still look noisy to it
-    or its mesh comes out in shreds; "noisy": always, with its 20K seeds)."""
+    (`smooth_from_pool`; the overlapping views sample the surface far more densely than the subset), then goes
+    to `cfg.init_pooled_preset`. With `cfg.init_filters` False the pixels go as lifted: no pooled smoothing,
+    "auto" is `fast`, and the preset's own filters are off (`UNFILTERED`)."""
     from dmesh.recon.config import PointCloudConfig
     from dmesh.recon.pointcloud import reconstruct as reconstruct_points
 

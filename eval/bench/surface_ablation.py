@@ -9,8 +9,9 @@ Protocol: point-cloud input as Table 2's (`eval/sweeps/paper.yaml` on the dev sp
 split: 100K samples with normals from the harness's input cache, `--work`), or with `--input scan` the
 robustness sweeps' noise-free 6-camera scan of the same shapes (occlusion holes and unseen stretches, where the
 hole-closing stages act; rows under split "dev scan"), DMesh's `fast` preset as the harness runs it (no private
-filter), reconstructed once per shape and seed; the surface step then runs once per variant
-on the same final triangulation. Figures per variant, in the GT frame (mean 0, max vertex norm 1): CD p2s x1e-3
+filter), reconstructed once per shape and seed; the surface step then runs every variant on the same final
+triangulation (`dmesh.surface.replay.run_variants`: the stages before the one a variant leaves out run once for
+all variants, each variant's mesh is the step's own for its config, and its seconds are its own stages'). Figures per variant, in the GT frame (mean 0, max vertex norm 1): CD p2s x1e-3
 (`eval.metrics.chamfer_l1_p2s`, `--metric-samples` per side, 20K by default: a comparison of variants, not a
 table figure), boundary edges, boundary length (a count depends on the resolution; the length does not),
 components and watertightness counted with vertices merged by position (`eval.metrics.mesh_stats`), faces and
@@ -25,9 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import logging
-import time
 from pathlib import Path
 
 import numpy as np
@@ -104,17 +103,20 @@ def _run_shape(split: str, cls: str, shape: str, seed: int, work: Path, n: int, 
                variant: dict | None = None) -> list[dict]:
     import trimesh
 
-    from dmesh.surface import surface_mesh
+    from dmesh.extract import to_trimesh
+    from dmesh.surface.replay import run_variants
 
     gt, pd, walls, (unit, normals), result, cfg = _state(shape, seed, work, points, variant)
     gt_edges, gt_length = _boundary(np.asarray(gt.vertices), np.asarray(gt.faces))
     gt_components = int(len(trimesh.graph.connected_components(gt.face_adjacency, nodes=np.arange(len(gt.faces)))))
+    # Every variant at once: the stages before the one a variant leaves out run once for all (each result is the
+    # step's own for its config); a variant's seconds are its stages' own, shared ones included.
+    configs = {name: cfg.surface.with_overrides(overrides) for name, overrides in variants()}
+    surfaces = run_variants(pd, walls, (unit, normals), unit, configs)
     rows = []
-    for name, overrides in variants():
-        start = time.perf_counter()
-        config = cfg.surface.with_overrides(overrides)
-        mesh = surface_mesh(pd, walls, (unit, normals), unit, config)
-        seconds = time.perf_counter() - start
+    for name, surface in surfaces.items():
+        seconds = sum(r["seconds"] for r in surface.info.get("stages", {}).values())
+        mesh = to_trimesh(surface.positions, surface.faces)
         mesh.vertices = np.asarray(mesh.vertices) / result.scale + result.center
         rows.append({"split": split, "class": cls, "shape": shape, "seed": seed, "variant": name,
                      **_figures(mesh, gt, n, seed), "gt_boundary_length": round(gt_length, 6),
