@@ -13,7 +13,7 @@ from pathlib import Path
 
 from eval.io import write_text
 from eval.reports.render import markdown, md_text, num, to_csv
-from eval.reports.tables import FRAME_NOTE, _mean
+from eval.reports.tables import CD_SHORT_NOTE, FRAME_NOTE, _mean
 
 #: knob -> (the swept coefficient, the one held at 0), output stem, paper table.
 KNOBS = {"weight": ("lambda_weight", "lambda_quality", "ablation_weight", "Table 4"),
@@ -80,7 +80,7 @@ def write_ablations(df, out: str | Path) -> list[Path]:
         md = [f"# Ablation: {swept} (like the paper's {paper_table})", "",
               f"DMesh on point clouds, {held} = 0, the other settings from `eval/sweeps/ablation.yaml` (the paper "
               f"preset cut to a CPU budget). Means over the shapes {', '.join(shapes) or '(none yet)'}. "
-              f"{FRAME_NOTE} CD x1e-3 (point-to-surface and sample L1, both directions summed); aspect ratio: "
+              f"{FRAME_NOTE} {CD_SHORT_NOTE} CD x1e-3; aspect ratio: "
               "mean circumradius / (2 inradius). The paper's columns are its own shapes and units, for the trend "
               "only.", ""]
         md.append(markdown(shown_rows(rows), columns(knob)) if rows

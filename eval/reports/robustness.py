@@ -266,7 +266,7 @@ NOISE_COLUMNS = [("input", "input", None), ("corruption", "corruption", None), (
 
 def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, Path]], noise=(),
               provenance=()) -> str:
-    from eval.reports.tables import FRAME_NOTE, markdown, md_text
+    from eval.reports.tables import CD_SHORT_NOTE, FRAME_NOTE, markdown, md_text
 
     cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
             ("corruption", "corruption", None), ("level", "level", None), ("n", "n", 1), ("failed", "failed", 1),
@@ -277,8 +277,8 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
            f"{FRAME_NOTE} Corruptions and their levels (fractions of the radius for noise and depth noise; "
            "fraction of the points for outliers; points kept for density; densest / sparsest for nonuniform; "
            "cameras for scan) are defined in `datasets/corrupt.py` and `datasets/scan.py`. The clean input is "
-           "the first level of every corruption. Means over the done runs (n), failures counted; CD p2s is the "
-           "point-to-surface Chamfer L1 (x1e-3 here, raw in the CSV); time is the method's wall time in seconds.",
+           "the first level of every corruption. Means over the done runs (n), failures counted. "
+           f"{CD_SHORT_NOTE} CD x1e-3 here, raw in the CSV; time is the method's wall time in seconds.",
            ""]
     out += [markdown(shown, cols) if rows else "_No runs on corrupted inputs in the store yet._\n"]
     if ratios:

@@ -22,7 +22,7 @@ from pathlib import Path
 from dmesh.recon.config import FAST_SEEDS
 from eval.io import atomic_path, write_text
 from eval.reports.render import markdown, num, to_csv
-from eval.reports.tables import FRAME_NOTE
+from eval.reports.tables import CD_SHORT_NOTE, FRAME_NOTE
 
 CLASSES = ("closed", "open", "mixed")
 SIZE_LABEL = re.compile(r"^num_init=\d+$")
@@ -200,7 +200,7 @@ def write_size(df, out: str | Path) -> list[Path]:
           "to the run's face count. *ratio* = fast start's CD at that face count / the run's CD: above 1, the "
           "gradient steps give a more accurate mesh of the same size. Blank: the face count is outside the fast "
           "sizes run. "
-          f"{FRAME_NOTE} CD p2s x1e-3; the CSV holds raw distances.", ""]
+          f"{FRAME_NOTE} {CD_SHORT_NOTE} CD p2s x1e-3; the CSV holds raw distances.", ""]
     if rows:
         summary = _summary(rows)
         if summary:

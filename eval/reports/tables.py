@@ -33,6 +33,11 @@ CD_NOTE = ("`cd_p2s`: point-to-surface Chamfer L1 (mean distance from samples of
            "a few 1e-3. Both: unsquared distances, the two directions' means summed (no factor 1/2), in the "
            "frame above; metric samples drawn from streams of their own (metric seed 0), never an input's draw. "
            "Markdown shows both x1e-3; the CSV holds raw distances.")
+#: The Chamfer convention in one sentence, for the reports that have no `CD_NOTE` (conventions differ by orders of
+#: magnitude between codebases, so every table states its own).
+CD_SHORT_NOTE = ("Chamfer distances are L1: unsquared, the two directions' means summed (no factor 1/2), from the "
+                 "sweep's metric samples per side (100K in the bundled sweeps); CD p2s measures each sample's "
+                 "distance to the other mesh's triangles, CD L1 to the other mesh's nearest sample.")
 #: Extra per-class means shown when the metrics provide them: (column, candidate metric names).
 OPTIONAL_METRICS = (("fscore", ("fscore", "f_score", "f1", "fscore_0.003")),
                     ("normal_consistency", ("normal_consistency", "nc")),
