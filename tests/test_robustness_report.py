@@ -168,7 +168,7 @@ def test_report_files_and_columns(db, tmp_path):
     assert (out / "figures" / "robustness_pointcloud.png").is_file()
     assert (out / "figures" / "robustness_budget_pointcloud.png").is_file()
     md = (out / "robustness.md").read_text()
-    assert "| pointcloud | psr | closed | noise | 0.005 | 2 | 0 | 6.00 |" in md and "DMesh / best" in md
+    assert "| pointcloud | dev | psr | closed | noise | 0.005 | 2 | 0 | 6.00 |" in md and "DMesh / best" in md
     assert all(p.is_file() for p in paths) and "<img" in body
     assert not list(out.rglob("*.tmp"))
 
@@ -418,3 +418,22 @@ def test_plot_panels_compare_methods_on_the_shapes_they_all_ran():
     same = {"method": "tsdf", "level": 0.005, "cd_p2s": 5.0, "per_shape": {"torus": 4.0, "genus2": 6.0}}
     value, common = robustness_figures.matched_values([two, same])
     assert common is None and value[id(two)] == 2.0 and value[id(same)] == 5.0   # same shapes: the means
+
+
+def test_test_split_shapes_get_rows_of_their_own(tmp_path):
+    """A scan of a test-split shape (eval/sweeps/test_scan.yaml) is not averaged into the dev shapes' row of its
+    class: the rows and the DMesh ratios carry the split."""
+    path = tmp_path / "work" / "results.sqlite"
+    extra = [_row("t1", "psr", "sphere", "closed", {"scan": 6}, 8e-3), _row("t2", "dmesh", "sphere", "closed",
+                                                                           {"scan": 6}, 2e-3),
+             _row("d1", "psr", "torus", "closed", {"scan": 6}, 4e-3), _row("d2", "dmesh", "torus", "closed",
+                                                                          {"scan": 6}, 3e-3)]
+    with Store(path) as s:
+        for r in extra:
+            s.upsert(r)
+    rows = [r for r in robustness.robustness_rows(_df(path)) if r["corruption"] == "scan" and r["level"] == 6]
+    by = {(r["split"], r["method"]): r for r in rows}
+    assert by[("test", "psr")]["cd_p2s"] == 8e-3 and by[("dev", "psr")]["cd_p2s"] == 4e-3
+    assert by[("test", "psr")]["n"] == 1 == by[("dev", "psr")]["n"]
+    ratios = {r["split"]: r["ratio"] for r in robustness.dmesh_ratios(rows)}
+    assert ratios == {"dev": 0.75, "test": 0.25}

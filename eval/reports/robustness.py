@@ -35,7 +35,7 @@ from eval.reports.robustness_figures import budget_plot, line_plots, scan_render
 
 log = logging.getLogger(__name__)
 
-CSV_COLUMNS = ["input", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1", "time_s",
+CSV_COLUMNS = ["input", "split", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1", "time_s",
                "faces", "components", "fscore", "normal_consistency", "setting"]
 BUDGET_COLUMNS = ["input", "method", "category", "config", "density", "n", "faces", "cd_p2s", "time_s"]
 _METRICS = (("cd_p2s", ("cd_p2s",)), ("cd_l1", ("cd_l1",)), ("time_s", ("time_s",)), ("faces", ("faces", "n_faces")),
@@ -68,9 +68,12 @@ def robustness_rows(df) -> list[dict]:
     """One row per input kind, method (+ config), class, corruption and level (raw units; module docstring)."""
     if df is None or not len(df):
         return []
+    from eval.reports.tables import split_column
+
     sub = labelled(df)
+    sub["_split"] = split_column(sub)
     rows = []
-    for kind, gk in sub.groupby("input_kind", sort=True):
+    for (kind, split), gk in sub.groupby(["input_kind", "_split"], sort=True):
         corrupted = gk[gk["_name"] != "clean"]
         labels = sorted(set(corrupted["_label"]))
         names = [f for f in FACTORS if f in set(corrupted["_name"])]
@@ -80,7 +83,7 @@ def robustness_rows(df) -> list[dict]:
             for cat in [c for c in CLASSES if c in set(gm["category"])] + sorted(set(gm["category"]) - set(CLASSES)):
                 gc = gm[gm["category"] == cat]
                 for name in names:
-                    rows += _factor_rows(gc, kind, label, cat, name)
+                    rows += [{**r, "split": split} for r in _factor_rows(gc, kind, label, cat, name)]
     return rows
 
 
@@ -149,7 +152,7 @@ def budget_rows(df) -> list[dict]:
 #: level with the others' would pick the winner after the fact.
 _DMESH_PRESET = re.compile(r"^dmesh(_mv)? \[[a-z_]+(: [^;\]]*)?(; init_preset=[a-z_]+)?\]$")
 #: Columns of the DMesh-against-the-best table (Markdown and HTML).
-RATIO_COLUMNS = [("input", "input", None), ("category", "class", None), ("corruption", "corruption", None),
+RATIO_COLUMNS = [("input", "input", None), ("split", "split", None), ("category", "class", None), ("corruption", "corruption", None),
                  ("level", "level", None), ("dmesh", "DMesh", None), ("n", "shapes", None),
                  ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3), ("best", "best other method", None),
                  ("best_cd_p2s", "its CD p2s (x1e-3)", 1e3), ("ratio", "DMesh / best other", 1, ".2f")]
@@ -180,9 +183,10 @@ def dmesh_ratios(rows: list[dict]) -> list[dict]:
     out, groups = [], {}
     for r in rows:
         if r.get("per_shape"):
-            key = (r["input"], r["category"], r["corruption"], str(r["level"]), preprocess_tag(r["method"]))
+            key = (r["input"], r.get("split"), r["category"], r["corruption"], str(r["level"]),
+                   preprocess_tag(r["method"]))
             groups.setdefault(key, []).append(r)
-    for (kind, cat, name, _, _), rs in groups.items():
+    for (kind, split, cat, name, _, _), rs in groups.items():
         dmesh_rows = (r for r in rs if _DMESH_PRESET.match(_untagged(r["method"])))
         for dm in sorted(dmesh_rows, key=lambda r: r["method"]):
             shapes = sorted(dm["per_shape"])
@@ -192,7 +196,7 @@ def dmesh_ratios(rows: list[dict]) -> list[dict]:
                 continue
             best_cd, best = min(others)
             mine = sum(dm["per_shape"][s] for s in shapes) / len(shapes)
-            out.append({"input": kind, "category": cat, "corruption": name, "level": rs[0]["level"],
+            out.append({"input": kind, "split": split, "category": cat, "corruption": name, "level": rs[0]["level"],
                         "dmesh": dm["method"], "n": len(shapes), "dmesh_cd_p2s": mine, "best": best,
                         "best_cd_p2s": best_cd, "ratio": mine / best_cd if best_cd > 0 else None})
     return out
@@ -268,7 +272,7 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
               provenance=()) -> str:
     from eval.reports.tables import CD_SHORT_NOTE, FRAME_NOTE, markdown, md_text
 
-    cols = [("input", "input", None), ("method", "method", None), ("category", "class", None),
+    cols = [("input", "input", None), ("split", "split", None), ("method", "method", None), ("category", "class", None),
             ("corruption", "corruption", None), ("level", "level", None), ("n", "n", 1), ("failed", "failed", 1),
             ("cd_p2s", "CD p2s (x1e-3)", 1e3), ("cd_l1", "CD L1 (x1e-3)", 1e3), ("time_s", "time (s)", 1),
             ("faces", "faces", 1), ("components", "components", 1)]
@@ -277,7 +281,9 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
            f"{FRAME_NOTE} Corruptions and their levels (fractions of the radius for noise and depth noise; "
            "fraction of the points for outliers; points kept for density; densest / sparsest for nonuniform; "
            "cameras for scan) are defined in `datasets/corrupt.py` and `datasets/scan.py`. The clean input is "
-           "the first level of every corruption. Means over the done runs (n), failures counted. "
+           "the first level of every corruption. Means over the done runs (n), failures counted, per split (dev: the "
+           "shapes the constants were chosen on; test: never tuned on, `eval/sweeps/test_scan.yaml`; the figures "
+           "show dev). "
            f"{CD_SHORT_NOTE} CD x1e-3 here, raw in the CSV; time is the method's wall time in seconds.",
            ""]
     out += [markdown(shown, cols) if rows else "_No runs on corrupted inputs in the store yet._\n"]
@@ -350,7 +356,7 @@ def write_robustness(df, out: str | Path, db: str | Path | None = None, work: st
     rows, budget = robustness_rows(df), budget_rows(df)
     ratios = dmesh_ratios(rows)
     figs = [p for kind in ("pointcloud", "multiview") for p in
-            (line_plots(rows, kind, figdir / f"robustness_{kind}.png"),
+            (line_plots([r for r in rows if r["split"] != "test"], kind, figdir / f"robustness_{kind}.png"),
              budget_plot(budget, kind, figdir / f"robustness_budget_{kind}.png")) if p is not None]
     scans = scan_renders(df, Path(db), Path(work or Path(db).parent), figdir) if renders and db else []
     md, csv, bcsv = out / "robustness.md", out / "robustness.csv", out / "robustness_budget.csv"
