@@ -2,15 +2,17 @@
 
 Two sets of sweeps run into one store:
 
-- the tables (default, `make reproduce-tables`): `eval/sweeps/paper.yaml` (Table 2: point cloud and multi-view
-  reconstruction by class, every method's default preset, DMesh's `fast` presets and the multi-view `depth`
-  start) and `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh);
+- the tables (default, `make reproduce-tables`): `eval/sweeps/paper.yaml` (Table 2's dev split: point cloud and
+  multi-view reconstruction by class, every method's default preset, DMesh's `fast` presets and the multi-view
+  `depth` start), `eval/sweeps/test.yaml` (Table 2's test split, point clouds at 3 seeds) and
+  `eval/sweeps/table1.yaml` (Table 1: mesh to DMesh);
 - the recipes (`--recipes`, `make reproduce-recipes`): DMesh's long gradient-step recipes,
   `eval/sweeps/recipes.yaml` (the point-cloud `paper` and multi-view `refine` presets on the Table 2 shapes),
   `eval/sweeps/recipes_size.yaml` (the fast start at the paper preset's mesh sizes: `reports/recipes_size.md`),
   `eval/sweeps/compact_floor.yaml` and `compact.yaml` (matched budgets: DMesh `compact` against
-  reconstruct-then-decimate, `reports/compact.md`) and `eval/sweeps/multiview_paper.yaml` (the multi-view
-  `paper` preset, hours per shape).
+  reconstruct-then-decimate, `reports/compact.md`), `eval/sweeps/test_multiview.yaml` (Table 2's test split from
+  images, 1 seed: the multi-view `fast` preset takes about 9 min a shape) and `eval/sweeps/multiview_paper.yaml`
+  (the multi-view `paper` preset, hours per shape).
 
 Either set then writes the reports from every configuration in the store (its latest run, as `--report-only`),
 so the recipes' rows stay in Table 2 after a run of the tables and the other way round; `--sweep FILES` runs
@@ -31,10 +33,10 @@ NAME = "reproduce-tables"
 HELP = "run the paper-style sweeps and regenerate reports/ (tables, figures, index.html)"
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
-DEFAULT_SWEEPS = [str(SWEEPS / name) for name in ("paper.yaml", "table1.yaml")]
+DEFAULT_SWEEPS = [str(SWEEPS / name) for name in ("paper.yaml", "test.yaml", "table1.yaml")]
 #: `--recipes`: DMesh's long gradient-step recipes (hours; resumable), the multi-view paper preset last.
 RECIPE_SWEEPS = [str(SWEEPS / name) for name in ("recipes.yaml", "recipes_size.yaml", "compact_floor.yaml",
-                                                  "compact.yaml", "multiview_paper.yaml")]
+                                                  "compact.yaml", "test_multiview.yaml", "multiview_paper.yaml")]
 
 log = logging.getLogger(__name__)
 
@@ -44,10 +46,11 @@ def add_arguments(p) -> None:
 
     p.add_argument("-o", "--out", default="reports", help="report folder (default: reports)")
     p.add_argument("--sweep", nargs="+", default=None, metavar="YAML",
-                   help="sweep files, reported alone (default: eval/sweeps/paper.yaml and table1.yaml)")
+                   help="sweep files, reported alone (default: eval/sweeps/paper.yaml, test.yaml and table1.yaml)")
     p.add_argument("--recipes", action="store_true",
                    help="run DMesh's long gradient-step recipes instead (eval/sweeps/recipes.yaml, recipes_size.yaml, "
-                        "compact_floor.yaml, compact.yaml, multiview_paper.yaml: many hours on 2 cores, resumable)")
+                        "compact_floor.yaml, compact.yaml, test_multiview.yaml, multiview_paper.yaml: many hours on 2 "
+                        "cores, resumable)")
     add_sweep_arguments(p, "runs/paper")
     p.add_argument("--no-renders", action="store_true", help="skip the rendered figures (tables and plots only)")
     p.add_argument("--report-only", action="store_true",

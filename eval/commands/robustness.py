@@ -4,8 +4,9 @@ the robustness report (`eval.reports.robustness`).
 By default three sweeps run into the store of `dmesh reproduce-tables` (runs/paper), so that one store (and its
 committed export, `reports/store/runs.jsonl.gz`) is behind every report: `eval/sweeps/robustness.yaml` (point
 clouds: each corruption level by itself, and a realistic scan), `robustness_budget.yaml` (each method at
-several output sizes on the clean input) and `robustness_multiview.yaml` (depth noise, fewer views, fewer
-pixels). DMesh filters nothing by itself in the harness; the sweep that gives every method the harness's
+several output sizes on the clean input), `robustness_multiview.yaml` (depth noise, fewer views, fewer
+pixels) and `test_scan.yaml` (the test split's closed shapes scanned with occlusion holes, 3 seeds: rows of split
+"test"). DMesh filters nothing by itself in the harness; the sweep that gives every method the harness's
 smoothing on every noisy input (`robustness_noisy.yaml`) is a study, run with `--sweep`. `--quick` runs
 `robustness_small.yaml` instead (the CI subset, a few minutes) into runs/robustness_quick and out/robustness_quick. Methods a sweep names that are not registered are left out
 with a warning. Resumable like every sweep; `--report-only` runs nothing.
@@ -19,7 +20,8 @@ NAME = "robustness"
 HELP = "run the robustness sweeps (corrupted inputs, scans, matched budgets) and write reports/robustness.*"
 
 SWEEPS = Path(__file__).resolve().parents[1] / "sweeps"
-DEFAULT_SWEEPS = [str(SWEEPS / n) for n in ("robustness.yaml", "robustness_budget.yaml", "robustness_multiview.yaml")]
+DEFAULT_SWEEPS = [str(SWEEPS / n) for n in ("robustness.yaml", "robustness_budget.yaml", "robustness_multiview.yaml",
+                                             "test_scan.yaml")]
 QUICK_SWEEPS = [str(SWEEPS / "robustness_small.yaml")]
 
 log = logging.getLogger(__name__)
@@ -31,7 +33,7 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--out", help="report folder (default: reports; with --quick: out/robustness_quick)")
     p.add_argument("--sweep", nargs="+", metavar="YAML",
                    help="sweep files (default: eval/sweeps/robustness.yaml, robustness_budget.yaml, "
-                        "robustness_multiview.yaml)")
+                        "robustness_multiview.yaml, test_scan.yaml)")
     p.add_argument("--quick", action="store_true",
                    help="the CI subset: eval/sweeps/robustness_small.yaml into runs/robustness_quick")
     add_sweep_arguments(p, "runs/paper")
