@@ -292,3 +292,20 @@ def test_the_name_check_catches_what_it_should(index, tmp_path):
                     f"[surface]({ROOT / 'docs' / 'surface.md'})\n"
                     "```python\nfrom dmesh.surface import SurfaceConfig\n```\n")
     assert not index.broken(page), index.broken(page)
+
+
+def test_readme_ratios_compare_dmesh_with_the_best_method_over_the_same_runs(tmp_path):
+    """A method with fewer done runs (failures) is not the best other method: its mean is over other shapes."""
+    from eval.reports.readme import ratios
+
+    path = tmp_path / "t.csv"
+    path.write_text("method,category,split,n,failed,cd_p2s\n"
+                    "dmesh [fast],closed,dev,4,0,0.001\n"
+                    "psr,closed,dev,4,0,0.002\n"
+                    "bpa,closed,dev,4,0,0.004\n"
+                    "voromesh,closed,dev,3,1,0.0001\n"
+                    "dmesh [fast],open,test,6,0,0.003\n"
+                    "psr,open,test,6,0,0.002\n")
+    assert ratios(path).splitlines()[-1] == "- `dmesh [fast]`: closed dev 0.5x (psr), open test 1.5x (psr)"
+    path.write_text("method,category,split,n,failed,cd_p2s\npsr,closed,dev,4,0,0.002\n")
+    assert ratios(path) == ""

@@ -1,6 +1,7 @@
 """The README's results summary, made from the committed Table 2 CSVs (`reports/table2_pointcloud.csv`,
 `reports/table2_multiview.csv`): per input, one row per method and one column per class (and split, when the
-CSV has test rows), holding the mean CD p2s x1e-3 with its run count.
+CSV has test rows), holding the mean CD p2s x1e-3 with its run count; then each DMesh row's ratio to the best other
+method per class and split (`ratios`).
 
 `python -m eval.reports.readme` (`make readme`) rewrites README.md between `BEGIN` and `END`;
 `--check` only says whether it would change (exit 1). `tests/test_docs.py` fails when the committed README
@@ -32,11 +33,7 @@ def _cell(row: dict | None) -> str:
 
 def table(path: Path) -> str:
     """The Markdown table of one Table 2 CSV: rows in the CSV's method order."""
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    for r in rows:
-        r.setdefault("split", "dev")  # a CSV from before the split column: every shape was a dev shape
-        r["split"] = r["split"] or "dev"
+    rows = _rows(path)
     splits = [s for s in SPLITS if any(r["split"] == s for r in rows)]
     cells = {(r["method"], r["category"], r["split"]): r for r in rows}
     methods = list(dict.fromkeys(r["method"] for r in rows))
@@ -49,6 +46,40 @@ def table(path: Path) -> str:
     return "\n".join(lines)
 
 
+def _rows(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        r["split"] = r.get("split") or "dev"  # a CSV from before the split column: every shape was a dev shape
+    return rows
+
+
+def ratios(path: Path) -> str:
+    """One line per DMesh row of a Table 2 CSV: its mean CD p2s over the best other method's, per class and split,
+    among the methods with as many done runs and no failure (so both means are over the same shape-seed runs);
+    "" when there is no DMesh row."""
+    rows = [r for r in _rows(path) if r.get("cd_p2s")]
+    out = []
+    for m in dict.fromkeys(r["method"] for r in rows if r["method"].startswith("dmesh")):
+        cells = []
+        for s in SPLITS:
+            for c in CLASSES:
+                mine = next((r for r in rows if (r["method"], r["category"], r["split"]) == (m, c, s)), None)
+                if mine is None:
+                    continue
+                others = [r for r in rows if not r["method"].startswith("dmesh") and (r["category"], r["split"]) ==
+                          (c, s) and r["n"] == mine["n"] and not int(float(r.get("failed") or 0))]
+                if others:
+                    best = min(others, key=lambda r: float(r["cd_p2s"]))
+                    cells.append(f"{c} {s} {float(mine['cd_p2s']) / float(best['cd_p2s']):.2g}x ({best['method']})")
+        if cells:
+            out.append(f"- `{m}`: " + ", ".join(cells))
+    if not out:
+        return ""
+    return ("DMesh over the best other method (mean CD p2s over the same runs; below 1, DMesh is ahead):\n\n"
+            + "\n".join(out))
+
+
 def summary(reports: Path) -> str:
     """The section between the markers (markers excluded)."""
     parts = ["CD p2s x1e-3 (lower is better; mean over the class's shapes, run count in brackets), from the "
@@ -57,6 +88,9 @@ def summary(reports: Path) -> str:
     for name, title in INPUTS:
         if (reports / name).is_file():
             parts.append(f"**{title}**\n\n{table(reports / name)}")
+            line = ratios(reports / name)
+            if line:
+                parts.append(line)
     return "\n\n".join(parts)
 
 
