@@ -99,9 +99,8 @@ class MultiViewResult(ReconstructionResult):
 
 # ------------------------------------------------------------------------------------------------- starts
 
-#: The point-cloud config fields of the depth start's own input filters, at the values that turn them off
-#: (`MultiViewConfig.init_filters` False): outlier removal, jet smoothing, the noise-triggered smoothing and the
-#: redo of a shredded mesh from smoothed input.
+#: The depth start's own input filters (`MultiViewConfig.init_filters` False turns them off): point-cloud config
+#: fields at their off values (outlier removal, jet smoothing, noise-triggered smoothing, redo of a shredded mesh).
 UNFILTERED = {"outlier_std": 0.0, "smooth_k": 0, "auto_smooth_k": 0, "redo_fragmented": 0.0}
 
 
@@ -144,7 +143,8 @@ def depth_init(vw: Views, center: np.ndarray, scale: float, box: float, cfg: Mul
     back = 1.0 / fit.scale
     points = np.clip(dm.points.detach().double().numpy() * back + fit.center, -box, box)
     info["init_depth"] = {"lifted_points": int(len(pts)), "points": len(dm), "faces": int(len(fit.mesh.faces)),
-                          "seconds": fit.timings.get("total"), "preset": preset, "filters": bool(cfg.init_filters), "noise_ratio": ratio,
+                          "seconds": fit.timings.get("total"), "preset": preset, "filters": bool(cfg.init_filters),
+                          "noise_ratio": ratio,
                           "pool_k": k if pooled else 0, "pixels": int(len(pixels)),
                           "redone": "fragmented_attempt" in fit.info}
     return DMesh(points, dm.weights.detach().double().numpy() * back**2, dm.reals.detach().double().numpy(),

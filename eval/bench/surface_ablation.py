@@ -11,14 +11,14 @@ robustness sweeps' noise-free 6-camera scan of the same shapes (occlusion holes 
 hole-closing stages act; rows under split "dev scan"), DMesh's `fast` preset as the harness runs it (no private
 filter), reconstructed once per shape and seed; the surface step then runs every variant on the same final
 triangulation (`dmesh.surface.replay.run_variants`: the stages before the one a variant leaves out run once for
-all variants, each variant's mesh is the step's own for its config, and its seconds are its own stages'). Figures per variant, in the GT frame (mean 0, max vertex norm 1): CD p2s x1e-3
-(`eval.metrics.chamfer_l1_p2s`, `--metric-samples` per side, 20K by default: a comparison of variants, not a
-table figure), boundary edges, boundary length (a count depends on the resolution; the length does not),
-components and watertightness counted with vertices merged by position (`eval.metrics.mesh_stats`), faces and
-the step's seconds.
+all variants, each variant's mesh is the step's own for its config, and its seconds are its own stages').
+Figures per variant, in the GT frame (mean 0, max vertex norm 1): CD p2s x1e-3 (`eval.metrics.chamfer_l1_p2s`,
+`--metric-samples` per side, 20K by default: a comparison of variants, not a table figure), boundary edges,
+boundary length (a count depends on the resolution; the length does not), components and watertightness counted
+with vertices merged by position (`eval.metrics.mesh_stats`), faces and the step's seconds.
 
-Rows are appended to `OUT/bench_surface_ablation_runs.csv` as each (shape, seed) finishes, so a stopped run resumes where it
-stopped; the Markdown report is rewritten from the CSV each time.
+Rows are appended to `OUT/bench_surface_ablation_runs.csv` as each (shape, seed) finishes, so a stopped run resumes
+where it stopped; the Markdown report is rewritten from the CSV each time.
 
 Run: `python -m eval.bench surface_ablation --split dev --seeds 0 1 2` (then `--split test`).
 """

@@ -8,8 +8,9 @@ several output sizes on the clean input), `robustness_multiview.yaml` (depth noi
 pixels) and `test_scan.yaml` (the test split's closed shapes scanned with occlusion holes, 3 seeds: rows of split
 "test"). DMesh filters nothing by itself in the harness; the sweep that gives every method the harness's
 smoothing on every noisy input (`robustness_noisy.yaml`) is a study, run with `--sweep`. `--quick` runs
-`robustness_small.yaml` instead (the CI subset, a few minutes) into runs/robustness_quick and out/robustness_quick. Methods a sweep names that are not registered are left out
-with a warning. Resumable like every sweep; `--report-only` runs nothing.
+`robustness_small.yaml` instead (the CI subset, a few minutes) into runs/robustness_quick and
+out/robustness_quick. Methods a sweep names that are not registered are left out with a warning. Resumable like
+every sweep; `--report-only` runs nothing.
 """
 from __future__ import annotations
 

@@ -85,7 +85,8 @@ def write_checks(rows: list[dict], ratios: list[float], out: str | Path) -> list
           f"{GAP_RATIO:g}x the harness monitor's CD p2s of its last monitored mesh (the raw extraction during the "
           "steps, 20K samples per side; the final figure has the sweep's samples and comes after the surface "
           "step). A listed run lost accuracy after its last step: look at its render and its surface step. "
-          "*earlier code*: the method's code has changed since the run. " + FRAME_NOTE + " " + CD_SHORT_NOTE + " CD p2s x1e-3.", ""]
+          "*earlier code*: the method's code has changed since the run. " + FRAME_NOTE + " " + CD_SHORT_NOTE
+          + " CD p2s x1e-3.", ""]
     md.append(f"Runs with a monitored curve: {len(ratios)}; over {GAP_RATIO:g}x: {len(rows)}." + summary(ratios))
     md.append("")
     if rows:

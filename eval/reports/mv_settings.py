@@ -99,7 +99,8 @@ def write_mv_settings(df, out: str | Path) -> list[Path]:
           "`multiview_schedule.yaml`, `multiview_depth.yaml`). *settings*: the overrides on top of the `fast` "
           "preset, or of the preset they name. */ TSDF*: CD p2s over TSDF fusion's on that shape (the target of issue "
           "[recipes] is at most 2 per class). Why each setting was chosen: `docs/preset_choices_multiview.md`. "
-          f"{FRAME_NOTE} {CD_SHORT_NOTE} CD x1e-3; the CSV holds raw distances. Times are wall seconds on this machine, under "
+          f"{FRAME_NOTE} {CD_SHORT_NOTE} CD x1e-3; the CSV holds raw distances. Times are wall seconds on this "
+          "machine, under "
           "whatever load the sweep ran beside.", "",
           markdown(rows, [("shape", "shape", None), ("category", "class", None), ("settings", "settings", None),
                           ("faces", "faces", 1, ".0f"), ("cd_p2s", "CD p2s", 1e3), ("cd_l1", "CD L1", 1e3),

@@ -35,7 +35,8 @@ from eval.reports.robustness_figures import budget_plot, line_plots, scan_render
 
 log = logging.getLogger(__name__)
 
-CSV_COLUMNS = ["input", "split", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1", "time_s",
+CSV_COLUMNS = ["input", "split", "method", "category", "corruption", "level", "n", "failed", "cd_p2s", "cd_l1",
+               "time_s",
                "faces", "components", "fscore", "normal_consistency", "setting"]
 BUDGET_COLUMNS = ["input", "method", "category", "config", "density", "n", "faces", "cd_p2s", "time_s"]
 _METRICS = (("cd_p2s", ("cd_p2s",)), ("cd_l1", ("cd_l1",)), ("time_s", ("time_s",)), ("faces", ("faces", "n_faces")),
@@ -152,7 +153,8 @@ def budget_rows(df) -> list[dict]:
 #: level with the others' would pick the winner after the fact.
 _DMESH_PRESET = re.compile(r"^dmesh(_mv)? \[[a-z_]+(: [^;\]]*)?(; init_preset=[a-z_]+)?\]$")
 #: Columns of the DMesh-against-the-best table (Markdown and HTML).
-RATIO_COLUMNS = [("input", "input", None), ("split", "split", None), ("category", "class", None), ("corruption", "corruption", None),
+RATIO_COLUMNS = [("input", "input", None), ("split", "split", None), ("category", "class", None),
+                 ("corruption", "corruption", None),
                  ("level", "level", None), ("dmesh", "DMesh", None), ("n", "shapes", None),
                  ("dmesh_cd_p2s", "DMesh CD p2s (x1e-3)", 1e3), ("best", "best other method", None),
                  ("best_cd_p2s", "its CD p2s (x1e-3)", 1e3), ("ratio", "DMesh / best other", 1, ".2f")]
@@ -297,16 +299,16 @@ def _markdown(rows, budget, ratios, figs: list[Path], renders: list[tuple[str, P
         from dmesh.recon.init import DEPTH_NOISY_RATIO, NOISY_RATIO
 
         out += ["", "## How noisy DMesh found each input", "",
-                "The noise ratio DMesh's defaults measure on their input (`dmesh.recon.init.noise_ratio`: the median "
-                "distance of a point to the plane of its 16 nearest neighbours, in neighbour spacings), over the "
-                "runs of the default presets: point clouds, `fast` (after its outlier filter; it smooths the input "
-                f"as `noisy` does above `NOISY_RATIO` = {NOISY_RATIO:g}); multi-view, the `depth` start on the lifted "
-                f"pixels (above `DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g} it fits each point from its nearest of all "
-                "the pixels; before 4 December it took the `noisy` point-cloud preset). "
-                "`smoothed`: how many of the runs that recorded the choice smoothed (blank: runs by code from "
-                "before the choice). `made again`: how many runs' point-cloud fits did not smooth at first, came "
-                "out in shreds (more than `FRAGMENTED_BOUNDARY` boundary edges per face) and were made again from "
-                "the smoothed input (noise the ratio missed; blank: runs by code from before the redo).",
+                "The noise ratio DMesh's library presets measure on their input (`dmesh.recon.init.noise_ratio`: "
+                "the median distance of a point to the plane of its 16 nearest neighbours, in neighbour spacings): "
+                "point clouds, `fast` (after its outlier filter; it smooths the input as `noisy` does above "
+                f"`NOISY_RATIO` = {NOISY_RATIO:g}); multi-view, the `depth` start on the lifted pixels (above "
+                f"`DEPTH_NOISY_RATIO` = {DEPTH_NOISY_RATIO:g} it fits each point from its nearest of all the pixels). "
+                "The harness's DMesh rows filter nothing, so they record no choice: the runs here were made with "
+                "the filters on (earlier code), and calibrate the library's thresholds on these inputs. "
+                "`smoothed`: how many of the runs that recorded the choice smoothed. `made again`: how many runs' "
+                "point-cloud fits did not smooth at first, came out in shreds (more than `FRAGMENTED_BOUNDARY` "
+                "boundary edges per face) and were made again from the smoothed input (noise the ratio missed).",
                 "", markdown([{**r, "level": "" if r["level"] is None else fmt_level(r["level"])} for r in noise],
                              NOISE_COLUMNS)]
     if budget:

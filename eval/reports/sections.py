@@ -63,7 +63,8 @@ def table2_section(df, kind: str, out: Path) -> tuple[list[Path], str, str]:
     rows = tables.table2(df, kind)
     label = KIND_LABELS[kind]
     body = [_links(md, csv, names=("Markdown", "CSV (raw units)")),
-            f"<p class='note'>{_html.escape(tables.FRAME_NOTE)} {_html.escape(tables.CD_SHORT_NOTE)} CD values x1e-3; means over successful runs "
+            f"<p class='note'>{_html.escape(tables.FRAME_NOTE)} {_html.escape(tables.CD_SHORT_NOTE)} CD values x1e-3; "
+            "means over successful runs "
             f"(n) with failures counted; metric samples per side N = {n_samples or 'n/a'}. "
             f"Shaded columns: the paper's published numbers (its own shapes and GPU), for reference.</p>"]
     if not rows:

@@ -319,9 +319,9 @@ def table2_markdown(rows: list[dict], input_kind: str, details: list[dict], n_sa
            f"failed runs beside them; a failed run has no CD.", "", CD_NOTE, "",
            f"Metric samples per side: N = {n_samples if n_samples else 'see the store'}. Time: the method's "
            "wall time in seconds on this machine (metrics excluded). CPU: its CPU seconds over all threads "
-           "(DMesh's own count; for the other methods the worker's, in runs since 5 December). The sweeps run "
-           "each method on one thread, so a wall time well above the CPU time means the run shared its core "
-           "with other work, and the CPU time is the better estimate of its time alone.", ""]
+           "(DMesh's own count; for the other methods the worker's; blank for runs that did not record it). "
+           "The sweeps run each method on one thread, so a wall time well above the CPU time means the run shared its "
+           "core with other work, and the CPU time is the better estimate of its time alone.", ""]
     if rows:
         out.append(markdown(rows, cols))
         splits = [s for s in SPLITS if any(r["split"] == s for r in rows)]
