@@ -29,6 +29,16 @@ Settings and their sources (docs/protocol.md, "Baselines", has the dev-split mea
   sampling, not the depth asked for, so on a sparse cloud depth - 2 would lie above every vertex and remove
   the whole surface. 0.7 is where depth 10 / trim 7 sits on the dev torus at 100K points; at depth - 2 the
   cap decides the trim value wherever the median density is below 8.7 (measurement: docs/protocol.md, "Sparse inputs").
+- Density follows the sampling, so a single trim value cuts the sparse side of a non-uniformly sampled or
+  scanned closed shape (the dev torus with an 8x density contrast lost 16 % of its area, CD p2s 0.256 ->
+  14.5e-3; its 6-camera scan 29 %, 0.58 -> 26.9e-3). The harness's rule against it, measured on the dev
+  split (docs/protocol.md, "Non-uniform sampling"): a vertex below the trim value stays when an input point
+  lies within `trim_support_ratio` = 1 of that point's local spacings (mean distance to its
+  `trim_support_neighbours` = 8 nearest points) and that spacing is at most `trim_support_max_spacing` = 4
+  times the median one (so an isolated outlier supports nothing: a cloud with 5 % outliers keeps its blobs
+  trimmed). It is the evidence rule the DMesh surface step's `reopen` stage uses (a piece farther than a few
+  local spacings from every input point is unseen), given to PSR's trim. PoissonRecon has no such rule; set
+  `trim_support_ratio` None for SurfaceTrimmer as it is.
 - `threads` 1: the harness's thread budget (OpenMP spin-waits make 2 much slower on a busy 2-core box).
 
 The `paper` preset (`{preset: paper}` in a sweep, row `psr [preset=paper]`) is the setting of the tables
@@ -69,6 +79,10 @@ class ScreenedPoisson(Method):
                                        # README 10/7 and COLMAP 13/10 use 3); None: no density trimming
             "trim_median_margin": 0.7,  # the trim value at most this far below the median density (sparse
                                         # inputs; None: no cap); docstring
+            "trim_support_ratio": 1.0,  # a vertex within this many local spacings of an input point is not
+                                        # trimmed (non-uniform sampling; docstring); None: SurfaceTrimmer as is
+            "trim_support_neighbours": 8,  # the local spacing: mean distance to this many nearest input points
+            "trim_support_max_spacing": 4.0,  # ... counted only up to this x the median spacing (outliers)
             "trim_smooth": 5,       # smoothing passes over the densities before the cut (SurfaceTrimmer --smooth)
             "island_area_ratio": 0.001,  # pieces at the cut below this area fraction change side (--aRatio)
             "trim_quantile": 0.0,   # Open3D-tutorial style: also drop vertices below this density quantile
@@ -116,8 +130,14 @@ class ScreenedPoisson(Method):
                 value = float(cfg["depth"]) - float(cfg["trim_depth_offset"])
                 if cfg["trim_median_margin"] is not None:  # what the samples support (module docstring)
                     value = min(value, float(np.median(density)) - float(cfg["trim_median_margin"]))
+                supported = None
+                if cfg["trim_support_ratio"] is not None:
+                    supported = sampled_vertices(verts, pts, float(cfg["trim_support_ratio"]),
+                                                 int(cfg["trim_support_neighbours"]),
+                                                 float(cfg["trim_support_max_spacing"]))
                 verts, faces, density, trim_info = trim_surface(
-                    verts, faces, density, value, int(cfg["trim_smooth"]), float(cfg["island_area_ratio"]))
+                    verts, faces, density, value, int(cfg["trim_smooth"]), float(cfg["island_area_ratio"]),
+                    supported)
                 info.update(trim_info)
             mesh = trimesh.Trimesh(verts, faces, process=False)
             q = float(cfg["trim_quantile"])
@@ -131,6 +151,33 @@ class ScreenedPoisson(Method):
 
 
 # ----------------------------------------------------------------------------------------- SurfaceTrimmer
+
+def sampled_vertices(verts: np.ndarray, points: np.ndarray, ratio: float, neighbours: int = 8,
+                     max_spacing: float = 4.0) -> np.ndarray:
+    """(V,) bool: the vertices an input point vouches for: within `ratio` of the nearest point's local spacing
+    (its mean distance to its `neighbours` nearest points), that spacing at most `max_spacing` times the median
+    one (a point far sparser than the rest, an outlier, vouches for nothing).
+
+    Args:
+        verts: (V, 3) mesh vertices. points: (N, 3) input points, N >= 2.
+        ratio: distance limit in local spacings (> 0). neighbours: k of the spacing (>= 1).
+        max_spacing: the largest spacing that counts, in median spacings (> 0).
+    """
+    from scipy.spatial import cKDTree
+
+    if not (ratio > 0 and max_spacing > 0 and int(neighbours) >= 1):
+        raise ValueError(f"psr: trim_support_ratio, trim_support_max_spacing and trim_support_neighbours must "
+                         f"be positive, got {ratio}, {max_spacing}, {neighbours}")
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 2 or not len(verts):
+        return np.zeros(len(verts), dtype=bool)
+    tree = cKDTree(points)
+    k = min(int(neighbours), len(points) - 1)
+    spacing = tree.query(points, k + 1)[0][:, 1:].mean(1)
+    distance, nearest = tree.query(np.asarray(verts, dtype=np.float64))
+    s = spacing[nearest]
+    return (distance <= ratio * s) & (s <= max_spacing * float(np.median(spacing)))
+
 
 def smooth_values(values: np.ndarray, faces: np.ndarray, passes: int) -> np.ndarray:
     """SurfaceTrimmer's value smoothing: `passes` times, each vertex becomes the mean of itself and its
@@ -173,7 +220,7 @@ def _face_components(faces: np.ndarray, n_verts: int) -> np.ndarray:
 
 
 def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim: float, smooth: int = 5,
-                 area_ratio: float = 0.001):
+                 area_ratio: float = 0.001, supported: np.ndarray | None = None):
     """Cut a PSR mesh where its density falls below `trim`, as PoissonRecon's SurfaceTrimmer does.
 
     The densities are smoothed (`smooth_values`), each face crossing the level `trim` is split on it (a new
@@ -188,6 +235,9 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
         trim: the trim value, on the density's scale.
         smooth: smoothing passes before the cut.
         area_ratio: area fraction below which a piece touching the cut changes side (0: none does).
+        supported: (V,) bool or None, vertices kept whatever their value (`sampled_vertices`): a supported
+            vertex at value x < trim counts as 2 trim - x, so the cut between it and an unsupported one lies
+            about mid-edge.
     Returns:
         verts (V', 3) float64, faces (F', 3) int64, values (V',) float64 the smoothed densities of the kept
         vertices (`trim` on the cut), and an info dict (trim_value, faces_cut_or_dropped,
@@ -196,6 +246,11 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
     verts = np.asarray(verts, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     val = smooth_values(density, faces, smooth)
+    n_supported = 0
+    if supported is not None:
+        lift = np.asarray(supported, dtype=bool) & (val <= trim)
+        n_supported = int(lift.sum())
+        val = np.where(lift, 2.0 * trim - val + 1e-9, val)
     above = val[faces] > trim                                  # (F, 3)
     n_above = above.sum(axis=1)
     keep_full, low_full = faces[n_above == 3], faces[n_above == 0]
@@ -255,5 +310,5 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
     used, remap = np.unique(kept, return_inverse=True)
     info = {"trim_value": float(trim), "faces_cut_or_dropped": int(len(faces) - np.sum(n_above == 3)),
             "area_trimmed_fraction": (1.0 - kept_area / total) if total > 0 else 0.0,
-            "islands_removed": islands, "holes_kept": holes}
+            "islands_removed": islands, "holes_kept": holes, "supported_vertices": n_supported}
     return all_verts[used], remap.reshape(-1, 3).astype(np.int64), all_vals[used], info
