@@ -219,6 +219,11 @@ def _face_components(faces: np.ndarray, n_verts: int) -> np.ndarray:
     return labels[:F]
 
 
+def _proper(faces: np.ndarray) -> np.ndarray:
+    """(F,) bool: faces with three distinct vertex indices."""
+    return (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+
+
 def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim: float, smooth: int = 5,
                  area_ratio: float = 0.001, supported: np.ndarray | None = None):
     """Cut a PSR mesh where its density falls below `trim`, as PoissonRecon's SurfaceTrimmer does.
@@ -236,8 +241,8 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
         smooth: smoothing passes before the cut.
         area_ratio: area fraction below which a piece touching the cut changes side (0: none does).
         supported: (V,) bool or None, vertices kept whatever their value (`sampled_vertices`): a supported
-            vertex at value x < trim counts as 2 trim - x, so the cut between it and an unsupported one lies
-            about mid-edge.
+            vertex counts as above the trim, and the cut between it and an unsupported one passes through it
+            (no new vertex: the surface ends at the last vertex a sample vouches for).
     Returns:
         verts (V', 3) float64, faces (F', 3) int64, values (V',) float64 the smoothed densities of the kept
         vertices (`trim` on the cut), and an info dict (trim_value, faces_cut_or_dropped,
@@ -246,11 +251,10 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
     verts = np.asarray(verts, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     val = smooth_values(density, faces, smooth)
-    n_supported = 0
+    lift = np.zeros(len(val), dtype=bool)
     if supported is not None:
         lift = np.asarray(supported, dtype=bool) & (val <= trim)
-        n_supported = int(lift.sum())
-        val = np.where(lift, 2.0 * trim - val + 1e-9, val)
+        val = np.where(lift, trim + 1.0, val)                  # above the trim; its crossings snap to it below
     above = val[faces] > trim                                  # (F, 3)
     n_above = above.sum(axis=1)
     keep_full, low_full = faces[n_above == 3], faces[n_above == 0]
@@ -269,8 +273,10 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
     i, j = uniq // V, uniq % V
     t = np.clip((trim - val[i]) / np.where(val[j] != val[i], val[j] - val[i], 1.0), 0.0, 1.0)
     new_verts = verts[i] + t[:, None] * (verts[j] - verts[i])
+    # A crossing from a supported vertex ends at it: the surface stops at the last vertex a sample vouches for.
+    index = np.where(lift[i], i, np.where(lift[j], j, V + np.arange(len(uniq))))
     M = len(r)
-    pab, pac = V + inv[:M], V + inv[M:]
+    pab, pac = index[inv[:M]], index[inv[M:]]
     a, b, c = r[:, 0], r[:, 1], r[:, 2]
     tri = np.stack([a, pab, pac], axis=1)                      # the lone vertex's corner
     quad = np.concatenate([np.stack([pab, b, c], axis=1), np.stack([pab, c, pac], axis=1)])
@@ -279,6 +285,8 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
     low_cut = np.concatenate([tri[~lone_above], quad[np.tile(lone_above, 2)]])
     all_verts = np.concatenate([verts, new_verts])
     all_vals = np.concatenate([val, np.full(len(new_verts), trim)])
+    kept_cut = kept_cut[_proper(kept_cut)]                    # faces collapsed onto a supported vertex go
+    low_cut = low_cut[_proper(low_cut)]
     kept = np.concatenate([keep_full, kept_cut])
     low = np.concatenate([low_full, low_cut])
     kept_flag = np.concatenate([np.zeros(len(keep_full), bool), np.ones(len(kept_cut), bool)])
@@ -310,5 +318,5 @@ def trim_surface(verts: np.ndarray, faces: np.ndarray, density: np.ndarray, trim
     used, remap = np.unique(kept, return_inverse=True)
     info = {"trim_value": float(trim), "faces_cut_or_dropped": int(len(faces) - np.sum(n_above == 3)),
             "area_trimmed_fraction": (1.0 - kept_area / total) if total > 0 else 0.0,
-            "islands_removed": islands, "holes_kept": holes, "supported_vertices": n_supported}
+            "islands_removed": islands, "holes_kept": holes, "supported_vertices": int(lift.sum())}
     return all_verts[used], remap.reshape(-1, 3).astype(np.int64), all_vals[used], info

@@ -123,16 +123,19 @@ def test_trim_drops_small_islands_and_keeps_small_holes():
 
 def test_supported_vertices_are_not_trimmed():
     """Density rising with x, trim at 5: the vertices marked supported on the low side stay, and the cut
-    between a supported vertex (value 2, counted as 2 x 5 - 2 = 8) and an unsupported one (1.5) lies on the
-    edge where the counted values cross 5: 3.5 / 6.5 of the way from x = 0.15."""
+    between a supported vertex and an unsupported one passes through the supported one: x = 0.2 exactly, no
+    new vertex, no degenerate face."""
     v, f = _sheet(21)                                       # grid step 0.05
     dens = 10.0 * v[:, 0]
     supported = v[:, 0] >= 0.2 - 1e-9                       # everything from x = 0.2 on
     kv, kf, _, info = trim_surface(v, f, dens, 5.0, smooth=0, area_ratio=0.0, supported=supported)
-    x_cut = 0.15 + 0.05 * 3.5 / 6.5
-    assert kv[:, 0].min() == pytest.approx(x_cut, abs=1e-7)
+    x_cut = 0.2
+    assert kv[:, 0].min() == pytest.approx(x_cut, abs=1e-12)
+    assert len(kv) == int((v[:, 0] >= 0.2 - 1e-9).sum())    # the grid's own vertices only
+    m = trimesh.Trimesh(kv, kf, process=False)
+    assert (m.area_faces > 1e-6).all() and m.body_count == 1
     assert info["supported_vertices"] == int(((v[:, 0] >= 0.2 - 1e-9) & (dens <= 5.0)).sum())
-    assert trimesh.Trimesh(kv, kf, process=False).area == pytest.approx(1.0 - x_cut, rel=1e-6)
+    assert m.area == pytest.approx(1.0 - x_cut, rel=1e-9)
     _, _, _, plain = trim_surface(v, f, dens, 5.0, smooth=0, area_ratio=0.0)
     assert plain["area_trimmed_fraction"] == pytest.approx(0.5, rel=1e-9) and plain["supported_vertices"] == 0
 
