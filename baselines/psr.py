@@ -31,14 +31,13 @@ Settings and their sources (docs/protocol.md, "Baselines", has the dev-split mea
   cap decides the trim value wherever the median density is below 8.7 (measurement: docs/protocol.md, "Sparse inputs").
 - Density follows the sampling, so a single trim value cuts the sparse side of a non-uniformly sampled or
   scanned closed shape (the dev torus with an 8x density contrast lost 16 % of its area, CD p2s 0.256 ->
-  14.5e-3; its 6-camera scan 29 %, 0.58 -> 26.9e-3). The harness's rule against it, measured on the dev
-  split (docs/protocol.md, "Non-uniform sampling"): a vertex below the trim value stays when an input point
-  lies within `trim_support_ratio` = 1 of that point's local spacings (mean distance to its
-  `trim_support_neighbours` = 8 nearest points) and that spacing is at most `trim_support_max_spacing` = 4
-  times the median one (so an isolated outlier supports nothing: a cloud with 5 % outliers keeps its blobs
-  trimmed). It is the evidence rule the DMesh surface step's `reopen` stage uses (a piece farther than a few
-  local spacings from every input point is unseen), given to PSR's trim. PoissonRecon has no such rule; set
-  `trim_support_ratio` None for SurfaceTrimmer as it is.
+  14.5e-3). The harness's rule against it, chosen on the dev split (docs/protocol.md, "Non-uniform sampling";
+  `python -m studies psr_support`): a vertex below the trim value stays when an input point lies within
+  `trim_support_ratio` = 1 of that point's local spacings (mean distance to its `trim_support_neighbours` = 8
+  nearest points) and that spacing is at most `trim_support_max_spacing` = 4 times the median one (an
+  isolated outlier vouches for nothing: 5 % outliers stay trimmed), and a cut from such a vertex passes
+  through it. That torus: 0.255e-3. It is the evidence rule of the DMesh surface step's `reopen` stage given
+  to PSR's trim; PoissonRecon has none (`trim_support_ratio` None: SurfaceTrimmer as it is).
 - `threads` 1: the harness's thread budget (OpenMP spin-waits make 2 much slower on a busy 2-core box).
 
 The `paper` preset (`{preset: paper}` in a sweep, row `psr [preset=paper]`) is the setting of the tables
