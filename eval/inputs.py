@@ -2,7 +2,8 @@
 
 The GT of each shape is prepared once (`prepare_gt`, cached under `WORK/inputs/<shape>-<gt hash>/`): loaded or
 generated, classified (closed / open / mixed), turned outward when inside out, and normalised (vertex mean at
-the origin, max vertex norm `radius`), then written as `gt.ply` beside `meta.json`. The inputs of the pending
+the origin, max vertex norm `radius`), then written as `gt.ply` beside `meta.json` (and, once a run is scored against it, `gt_figures.json`: the GT's
+own figures, `eval.execute.with_gt_figures`). The inputs of the pending
 runs are prepared once per (shape, input kind, settings, seed), cached beside the GT (`prepare_input`,
 `input_path`): `pc_n<N>_s<seed>.npz` holds `points` (N, 3) float32 and `normals` (N, 3) float32 (area-uniform
 samples of the normalised GT); `mv_v<V>_r<R>_d<D>/` holds the multi-view capture (`datasets.capture.MultiView`).

@@ -286,9 +286,9 @@ def test_sweep_stores_done_rows_then_skips_them(fake, tmp_path):
         assert r["config_json"]["counter"] == str(counter) and r["code_version"].startswith(("0", "1"))
         assert (runner.db_path.parent / r["mesh_path"]).is_file()
         assert r["started_at"] <= r["finished_at"]
-    # Inputs were prepared once per (shape, kind, seed) and cached.
+    # Inputs were prepared once per (shape, kind, seed) and cached, and the GT's own figures once per GT.
     cached = sorted(p.name for p in (tmp_path / "work" / "inputs").rglob("*") if p.is_file())
-    assert cached == ["gt.ply", "meta.json", "pc_n1500_s0.npz", "pc_n1500_s1.npz"]
+    assert cached == ["gt.ply", "gt_figures.json", "meta.json", "pc_n1500_s0.npz", "pc_n1500_s1.npz"]
     assert counter.read_text().split() == ["0", "1"]
     # A second run recomputes nothing.
     s = run_sweep(sweep, runner)

@@ -41,7 +41,7 @@ def run(args) -> int:
     import trimesh
 
     from eval.progress import progress
-    from eval.execute import resolve_mesh_path, score
+    from eval.execute import resolve_mesh_path, score, with_gt_figures
     from eval.inputs import load_gt
     from eval.store import Store, check_store
     from eval.code_hash import metrics_current, metrics_version
@@ -76,7 +76,7 @@ def run(args) -> int:
         for row, mesh_file, gt_file in progress(todo, desc="rescore", unit="run"):
             try:
                 mesh = trimesh.load(mesh_file, process=False, force="mesh")
-                metrics = score(mesh, load_gt(gt_file), row.get("inputs_json") or {}, row.get("info_json"))
+                metrics = score(mesh, with_gt_figures(load_gt(gt_file), gt_file), row.get("inputs_json") or {}, row.get("info_json"))
             except Exception as exc:  # noqa: BLE001 - one bad mesh must not stop the others
                 failed += 1
                 log.warning("run %s (%s on %s): not rescored: %s", row["key"][:12], row["method"], row["shape"],
