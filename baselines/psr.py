@@ -29,15 +29,12 @@ Settings and their sources (docs/protocol.md, "Baselines", has the dev-split mea
   sampling, not the depth asked for, so on a sparse cloud depth - 2 would lie above every vertex and remove
   the whole surface. 0.7 is where depth 10 / trim 7 sits on the dev torus at 100K points; at depth - 2 the
   cap decides the trim value wherever the median density is below 8.7 (measurement: docs/protocol.md, "Sparse inputs").
-- Density follows the sampling, so a single trim value cuts the sparse side of a non-uniformly sampled or
-  scanned closed shape (the dev torus with an 8x density contrast lost 16 % of its area, CD p2s 0.256 ->
-  14.5e-3). The harness's rule against it, chosen on the dev split (docs/protocol.md, "Non-uniform sampling";
-  `python -m studies psr_support`): a vertex below the trim value stays when an input point lies within
-  `trim_support_ratio` = 1 of that point's local spacings (mean distance to its `trim_support_neighbours` = 8
-  nearest points) and that spacing is at most `trim_support_max_spacing` = 4 times the median one (an
-  isolated outlier vouches for nothing: 5 % outliers stay trimmed), and a cut from such a vertex passes
-  through it. That torus: 0.255e-3. It is the evidence rule of the DMesh surface step's `reopen` stage given
-  to PSR's trim; PoissonRecon has none (`trim_support_ratio` None: SurfaceTrimmer as it is).
+- Density follows the sampling, so one trim value cuts the sparse side of a non-uniformly sampled or scanned
+  closed shape. A vertex below it therefore stays when an input point lies within `trim_support_ratio` = 1 of
+  that point's local spacings (mean distance to its `trim_support_neighbours` = 8 nearest), counting only
+  points whose spacing is at most `trim_support_max_spacing` = 4 x the median (outliers vouch for nothing); the
+  DMesh surface step's `reopen` evidence rule, given to PSR's trim, chosen on the dev split (docs/protocol.md,
+  "Non-uniform sampling"; `python -m studies psr_support`). PoissonRecon has none: `trim_support_ratio` None.
 - `threads` 1: the harness's thread budget (OpenMP spin-waits make 2 much slower on a busy 2-core box).
 
 The `paper` preset (`{preset: paper}` in a sweep, row `psr [preset=paper]`) is the setting of the tables

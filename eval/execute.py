@@ -90,10 +90,9 @@ def with_gt_figures(gt, gt_path: str | Path):
     """`gt` with its `gt_*` figures attached (`eval.metrics.GT_FIGURES_KEY`), from `gt_figures.json` beside the GT
     file when that was computed from the same file by the same metrics version, else computed and written there.
 
-    Every run of a shape scores against the same GT, and on the test split's GTs (1.6-2.1M faces) orienting it
-    and counting its topology took about 19 of a run's 34 s of scoring (measured under load, the vessel). Only a
-    GT that `eval.metrics.gt_figures` leaves as it is (outward already, as `load_gt` returns it) is cached; any
-    other is scored as before. Returns `gt` (its metadata updated in place when the figures apply).
+    Every run of a shape scores against the same GT, whose orientation and topology dominate the scoring of a
+    million-face GT. Only a GT that `eval.metrics.gt_figures` leaves as it is (outward already, as `load_gt`
+    returns it) is cached; any other is scored as before. Returns `gt` (its metadata updated in place when the figures apply).
     """
     import hashlib
     import json

@@ -294,8 +294,8 @@ def oriented_fractions(pred, gt, p2s_backend: str = "auto") -> dict:
     return _oriented_fractions(pv, pf, _face_normals(gv, gf), make_index(gv, gf, p2s_backend))
 
 
-#: `gt.metadata` key of the GT's own figures (`gt_figures`), when the caller knows them: the GT of every run of a
-#: shape is the same file, and on a 2M-face GT its orientation and topology took about half of the scoring.
+#: `gt.metadata` key of the GT's own figures (`gt_figures`), when the caller knows them (every run of a shape
+#: scores against the same GT file: `eval.execute.with_gt_figures` computes them once).
 GT_FIGURES_KEY = "gt_figures"
 
 
