@@ -5,10 +5,15 @@ Shape letters: N input points, F output faces.
 Interpolates the input points, so it handles open surfaces but leaves holes where the sampling is sparser than
 the largest ball. Two settings, each with its source:
 
-- `backend: open3d` (default, row `bpa`): radii {1, 2, 4} x the mean nearest-neighbour spacing of the input.
-  Open3D's tutorial (`surface_reconstruction.ipynb`) pivots a doubling list of radii, and its maintainer
-  (Open3D issue #2733) advises deriving the radii from the point density; the first radius at the spacing,
-  then doubling, is that advice made concrete (docs/protocol.md). The input normals are used (Open3D's BPA
+- `backend: open3d` (default, row `bpa`): radii {1, 2, 4, 8} x the mean nearest-neighbour spacing of the
+  input. Open3D's tutorial (`surface_reconstruction.ipynb`) pivots a doubling list of radii, and its
+  maintainer (Open3D issue #2733) advises deriving the radii from the point density; the first radius at the
+  spacing, then doubling, is that advice made concrete. Four radii, not three: where the density varies (an
+  8x contrast, a scan) the mean spacing is the dense side's, and balls of up to 4 spacings fall through the
+  sparse side. On the dev split the fourth took the non-uniform inputs from 2.3-5.6x their clean figure to
+  1.3-1.6x and halved the closed shapes' scans (clean: 1-10 % better, but the wavy sheet 15 % worse); a fifth
+  (16) capped an open sheet's rim (clean wavy_sheet 0.028 -> 0.046e-3) and slowed scans 3-6x
+  (studies/reports/bpa_radii.md). The input normals are used (Open3D's BPA
   "assumes that the PointCloud has normals"); without them they are estimated from `normal_k` neighbours.
 - `backend: meshlab` (row `bpa [backend=meshlab]`): MeshLab's own filter at its defaults (pymeshlab
   `generate_surface_reconstruction_ball_pivoting`, `ballradius` 0 = automatic, clustering 20 %, crease angle
@@ -35,7 +40,7 @@ class BallPivoting(Method):
     def default_config(self) -> dict:
         return {
             "backend": "open3d",     # "open3d" (radii below) or "meshlab" (MeshLab's automatic single radius)
-            "radii": [1.0, 2.0, 4.0],  # open3d: ball radii as multiples of the mean NN spacing (Open3D advice)
+            "radii": [1.0, 2.0, 4.0, 8.0],  # open3d: ball radii, multiples of the mean NN spacing (Open3D advice)
             "normal_k": 16,            # open3d: neighbours for normal estimation when the inputs have no normals
             "clustering": 20.0,        # meshlab: min vertex distance, % of the radius (MeshLab default)
             "crease_angle": 90.0,      # meshlab: max angle between pivoted faces, degrees (MeshLab default)
