@@ -16,13 +16,16 @@ their hashes:
                      imported module) is added as a `def:` entry
     file:PATH        a file the run depends on whole: the method's own package (`baselines/`: the wrapper
                      the registry built before the worker started)
-    tree:native      the native sources, when the closure imports `dmesh.native`
+    native:PATH      a native source file (C++, the build file) behind the `dmesh.native` wrappers the run
+                     executed (`eval.native_deps`), when the closure imports `dmesh.native`; `tree:native`
+                     (the whole tree) where that cannot be told, and in records made before this entry
     inputs:version   the version of the cached input data (`eval.code_hash.INPUT_VERSION`): a run depends on
                      its input's data, not on the text of the code that generated it
 
 Records made before "inputs:version" held the input generation as `file:` entries (`INPUT_MODULES` and what
 they import, whole), so that any refactor of datasets/ made every stored run stale; `migrate` rewrites such a
-record, while it still holds, into the current form.
+record, while it still holds, into the current form; so does a record that held the native sources as one
+`tree:native` entry (into its `native:` files).
 
 A later sweep whose closure hash differs from a stored run's adopts that run as current when the entries'
 hashes, taken from the sources now, give the same digest (`fresh`; `eval.stored.adopt_current`). One digest
@@ -51,6 +54,7 @@ import threading
 from pathlib import Path
 from typing import Iterator, Mapping
 
+from eval import native_deps
 from eval.code_hash import (INPUT_MODULES, INPUT_VERSION, NATIVE_TREES, REPO, _module_file, method_trees,
                              module_closure, source_hash, strip_docstrings)
 
@@ -60,6 +64,8 @@ TRACED_PACKAGES = ("dmesh", "datasets", "baselines")
 WHOLE_PACKAGES = ("baselines",)
 #: The entry of a run's record that holds the version of its input data (`eval.code_hash.INPUT_VERSION`).
 INPUTS_ENTRY = "inputs:version"
+#: The entry of the whole native tree (records before `native:` entries, and wrappers `native_deps` cannot map).
+NATIVE_ENTRY = "tree:native"
 
 
 @contextlib.contextmanager
@@ -212,9 +218,10 @@ def entry_hashes(method, codes, root: str | Path | None = None,
     loaded = Path(code_root).resolve() if code_root is not None else base
     trees = method_trees(method, base)
     deps: dict[str, str] = {INPUTS_ENTRY: str(INPUT_VERSION)}
+    native = False
     for tree in trees:
         if tree in NATIVE_TREES:
-            deps[f"tree:{tree}"] = source_hash((tree,), base)[:16]
+            native = True
             continue
         fc = file_code(base / tree)
         if fc is None:
@@ -239,7 +246,19 @@ def entry_hashes(method, codes, root: str | Path | None = None,
         deps[f"outline:{rel}"] = fc.outline  # module-level code, and the constants its functions read
         if unit is not None:  # else module-level code ran (a lazy import, a module-level lambda)
             deps[f"def:{rel}::{unit}"] = fc.units[unit]
+    if native:
+        deps.update(_native_entries(deps, base))
     return dict(sorted(deps.items()))
+
+
+def _native_entries(deps, base: Path) -> dict[str, str]:
+    """{entry: hash} of the native sources behind the `dmesh.native` wrappers that `deps` (entries) name as
+    executed: one `native:` entry per file, or the whole tree (`NATIVE_ENTRY`) when they cannot be told."""
+    prefix = f"def:{native_deps.WRAPPERS}::"
+    files = native_deps.files_for([e[len(prefix):] for e in deps if e.startswith(prefix)], base)
+    if files is None:
+        return {NATIVE_ENTRY: current(NATIVE_ENTRY, base)}
+    return {f"native:{f}": current(f"native:{f}", base) for f in files}
 
 
 def current(entry: str, root: str | Path | None = None) -> str | None:
@@ -251,6 +270,8 @@ def current(entry: str, root: str | Path | None = None) -> str | None:
     kind, _, rest = entry.partition(":")
     if kind == "tree":
         return source_hash((rest,), base)[:16]
+    if kind == "native":
+        return native_deps.file_hash(base, rest)
     path, _, unit = rest.partition("::")
     fc = file_code(base / path)
     if fc is None:
@@ -277,24 +298,34 @@ def fresh(deps: Mapping | None, root: str | Path | None = None) -> bool:
 
 
 def migrate(deps: Mapping | None, method, root: str | Path | None = None) -> dict | None:
-    """A record of a run of `method` made before "inputs:version" (the input generation as whole `file:`
-    entries) in the current form, when it still holds (`fresh`); None when `deps` is already current, or holds no
-    longer (the run is stale either way: nothing to keep).
+    """A record of a run of `method` in an earlier form, in the current form, when it still holds (`fresh`);
+    None when `deps` is already current, or holds no longer (the run is stale either way: nothing to keep).
 
-    The input generation's `file:` entries give way to "inputs:version", but for the files of `method`'s own
-    closure (a baseline that calls a datasets/ helper keeps depending on that file)."""
+    Two earlier forms: before "inputs:version", the input generation as whole `file:` entries, which give way
+    to "inputs:version" (but for the files of `method`'s own closure: a baseline that calls a datasets/ helper
+    keeps depending on that file); before `native:` entries, the whole native tree as one `tree:native` entry,
+    which gives way to the files behind the wrappers the record names as executed (`eval.native_deps`)."""
     if not deps or not isinstance(deps, Mapping) or "digest" not in deps:
         return None
     base = Path(root if root is not None else REPO).resolve()
     entries = list(deps.get("entries") or [])
     own = set(method_trees(method, base))
     legacy = {f"file:{f}" for f in module_closure(INPUT_MODULES, str(base)) if f not in own}
-    if INPUTS_ENTRY in entries or not legacy.intersection(entries) or not fresh(deps, base):
+    old_inputs = INPUTS_ENTRY not in entries and bool(legacy.intersection(entries))
+    if not (old_inputs or NATIVE_ENTRY in entries) or not fresh(deps, base):
         return None
-    hashes = {e: current(e, base) for e in entries if e not in legacy}
-    hashes[INPUTS_ENTRY] = str(INPUT_VERSION)
+    native = _native_entries(entries, base) if NATIVE_ENTRY in entries else None
+    if native is not None and NATIVE_ENTRY in native:
+        native = None  # the wrappers cannot be told apart: the whole tree stays
+    if not (old_inputs or native):
+        return None
+    drop = (legacy if old_inputs else set()) | ({NATIVE_ENTRY} if native else set())
+    hashes = {e: current(e, base) for e in entries if e not in drop}
+    if old_inputs:
+        hashes[INPUTS_ENTRY] = str(INPUT_VERSION)
+    hashes.update(native or {})
     return {"entries": sorted(hashes), "digest": digest(hashes)}
 
 
-__all__ = ["record", "deps_for", "migrate", "INPUTS_ENTRY", "entry_hashes", "digest", "fresh", "current", "file_code",
-           "strip_docstrings", "TRACED_PACKAGES"]
+__all__ = ["record", "deps_for", "migrate", "INPUTS_ENTRY", "NATIVE_ENTRY", "entry_hashes", "digest", "fresh", "current",
+           "file_code", "strip_docstrings", "TRACED_PACKAGES"]

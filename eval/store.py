@@ -446,6 +446,12 @@ class Store:
                "AND instr(code_deps, ?) = 0")
         return [_decode(r) for r in self._conn.execute(sql, (json.dumps(entry),))]
 
+    def code_deps_with(self, entry: str) -> list[dict]:
+        """(key, method, code_deps) of the done runs whose `code_deps` name `entry`, JSON decoded."""
+        sql = ("SELECT key, method, code_deps FROM runs WHERE status='done' AND code_deps IS NOT NULL "
+               "AND instr(code_deps, ?) > 0")
+        return [_decode(r) for r in self._conn.execute(sql, (json.dumps(entry),))]
+
     def counts(self) -> dict[str, int]:
         """Number of runs per status."""
         return {r[0]: r[1] for r in self._conn.execute("SELECT status, COUNT(*) FROM runs GROUP BY status")}

@@ -53,15 +53,18 @@ def adopt_current(runs: list[RunSpec], store: Store) -> list[RunSpec]:
 
 
 def migrate_records(store: Store) -> int:
-    """Rewrites, in `store`, the `code_deps` of each done run recorded before "inputs:version" (the input
-    generation as whole files) that still holds, into the current form (`eval.code_deps.migrate`), so that a
-    later refactor of datasets/ leaves it current; returns how many. A run of a method no longer registered, or
-    whose record holds no longer, is left as it is. One query when none is left."""
+    """Rewrites, in `store`, the `code_deps` of each done run recorded in an earlier form (before
+    "inputs:version": the input generation as whole files; before `native:` entries: the whole native tree)
+    that still holds, into the current form (`eval.code_deps.migrate`), so that a later refactor of datasets/,
+    or an edit of native code the run never called, leaves it current; returns how many. A run of a method no
+    longer registered, or whose record holds no longer, is left as it is. Two queries when none is left."""
     from eval.sweep import get_method
 
     methods: dict = {}
     migrated = 0
-    for row in store.code_deps_without(code_deps.INPUTS_ENTRY):
+    rows = {r["key"]: r for r in store.code_deps_without(code_deps.INPUTS_ENTRY)}
+    rows.update((r["key"], r) for r in store.code_deps_with(code_deps.NATIVE_ENTRY))
+    for row in rows.values():
         if row["method"] not in methods:
             try:
                 methods[row["method"]] = get_method(row["method"])

@@ -265,3 +265,103 @@ def test_a_store_is_migrated_once(tmp_path):
         assert migrate_records(store) == 1 and migrate_records(store) == 0
         assert store.get("k" * 64)["code_deps"] == {"entries": sorted(now), "digest": code_deps.digest(now)}
         assert store.get("j" * 64)["code_deps"] == row["code_deps"]
+
+
+def test_a_run_depends_on_the_native_files_behind_the_wrappers_it_called(tmp_path):
+    """A point-cloud `fast` run triangulates and takes no gradient step: its record names the native files
+    behind the wrappers it called (triangulation, power diagram), not the face-probability kernels. An edit of
+    those kernels leaves it current; an edit of a file it called, or of the build, does not. A record that held
+    the whole tree (`tree:native`) is migrated to the files while it holds."""
+    import trimesh
+
+    from datasets.synthetic import torus
+    from dmesh.recon import pointcloud
+    from dmesh.recon.config import PointCloudConfig
+    from eval.code_hash import _source_hash
+    from eval.sweep import get_method
+
+    for pkg in ("dmesh", "baselines", "datasets", "eval", "native"):
+        shutil.copytree(REPO / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    mesh = torus()
+    points, faces = trimesh.sample.sample_surface(mesh, 3000, seed=0)
+    with code_deps.record() as executed:
+        pointcloud.reconstruct(np.asarray(points), mesh.face_normals[faces], config=PointCloudConfig.preset("fast"))
+    dmesh_method = get_method("dmesh")
+    hashes = code_deps.entry_hashes(dmesh_method, executed, root=tmp_path, code_root=REPO)
+    deps = {"entries": sorted(hashes), "digest": code_deps.digest(hashes)}
+    native = {k.removeprefix("native:") for k in hashes if k.startswith("native:")}
+    assert code_deps.NATIVE_ENTRY not in hashes
+    assert {"native/CMakeLists.txt", "native/bindings/bind_wdt.cpp", "native/src/regular_triangulation.cpp",
+            "native/src/power_diagram.cpp", "native/src/types.h"} <= native
+    assert "native/src/delta_recompute.cpp" not in native and "native/src/soft_render.cpp" not in native
+    assert code_deps.fresh(deps, tmp_path)
+
+    def edit(rel: str):
+        path = tmp_path / rel
+        text = path.read_text()
+        path.write_text(text + "\n// edited\n")
+        return path, text
+
+    path, text = edit("native/src/delta_recompute.cpp")
+    assert code_deps.fresh(deps, tmp_path), "an edit of kernels the run never called made it stale"
+    for rel in ("native/src/power_diagram.cpp", "native/src/types.h", "native/CMakeLists.txt"):
+        path, text = edit(rel)
+        assert not code_deps.fresh(deps, tmp_path), f"an edit of {rel} left the run current"
+        path.write_text(text)
+    assert code_deps.fresh(deps, tmp_path)
+
+    old = {k: v for k, v in hashes.items() if not k.startswith("native:")}
+    old[code_deps.NATIVE_ENTRY] = code_deps.current(code_deps.NATIVE_ENTRY, tmp_path)
+    legacy = {"entries": sorted(old), "digest": code_deps.digest(old)}
+    assert code_deps.fresh(legacy, tmp_path)
+    assert code_deps.migrate(legacy, dmesh_method, tmp_path) == deps
+    assert code_deps.migrate(deps, dmesh_method, tmp_path) is None  # already current
+    edit("native/src/tet_render.cpp")                               # the tree changed: stale, nothing to keep
+    _source_hash.cache_clear()                                      # (a tree's hash is cached per process)
+    assert not code_deps.fresh(legacy, tmp_path) and code_deps.migrate(legacy, dmesh_method, tmp_path) is None
+    assert code_deps.fresh(deps, tmp_path)
+
+
+def test_native_files_of_a_wrapper_follow_its_bindings_and_includes(tmp_path):
+    """`eval.native_deps`: a wrapper's attribute maps to the bindings file that registers it, then to the local
+    includes and each header's implementation; an attribute no bindings file registers gives None (the whole
+    tree)."""
+    from eval import native_deps
+
+    (tmp_path / "dmesh").mkdir()
+    (tmp_path / "dmesh" / "native.py").write_text(textwrap.dedent('''
+        from dmesh import _native
+        LIMIT = _native.LIMIT
+
+        def tri(p):
+            return _native.tri(p)
+
+        def tree(p):
+            return _native.Tree(p)
+
+        def lost(p):
+            return _native.nowhere(p)
+
+        def plain(p):
+            return p
+    '''))
+    files = {
+        "CMakeLists.txt": "project(x)\n",
+        "bindings/module.cpp": "// module\n",
+        "bindings/bind_a.cpp": ('#include "a.h"\nvoid f(M& m) {\n  m.def(\n      "tri", &tri);\n'
+                                '  m.attr("LIMIT") = 3;\n}\n'),
+        "bindings/bind_b.cpp": '#include "b.h"\nvoid g(M& m) { nb::class_<T>(m, "Tree", "doc"); }\n',
+        "src/a.h": '#include "types.h"\n', "src/a.cpp": '#include "a.h"\n#include "c.h"\n',
+        "src/b.h": '#include "types.h"\n', "src/b.cpp": '#include "b.h"\n', "src/c.h": "", "src/types.h": "",
+    }
+    for rel, text in files.items():
+        (tmp_path / "native" / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "native" / rel).write_text(text)
+    base = ["native/CMakeLists.txt", "native/bindings/bind_a.cpp", "native/bindings/module.cpp",
+            "native/src/a.cpp", "native/src/a.h", "native/src/c.h", "native/src/types.h"]
+    assert native_deps.files_for([], tmp_path) == base            # LIMIT, read at import, is bind_a's
+    assert native_deps.files_for(["plain"], tmp_path) == base
+    assert native_deps.files_for(["tri"], tmp_path) == base
+    assert native_deps.files_for(["tree"], tmp_path) == sorted(base + ["native/bindings/bind_b.cpp",
+                                                                       "native/src/b.cpp", "native/src/b.h"])
+    assert native_deps.files_for(["tri", "lost"], tmp_path) is None
