@@ -94,8 +94,11 @@ EXPECTED = {'capture': {'depth': [[4, 32, 32], 501.96387577056885, 501.963875770
 
 
 #: Tolerance (of the sum of magnitudes) per case: rendered images are rasterised by the machine's OpenGL, whose
-#: last bits depend on the driver; a change to the rig, the projection or the shading moves them far more.
-RTOL = {"capture": 1e-4, "depth noise": 1e-4}
+#: last bits depend on the driver; a change to the rig, the projection or the shading moves them far more. A
+#: simulated scan's hits are open3d's Embree ray casts in float32, whose last bits depend on the CPU's vector
+#: units (the same open3d 0.20.0 gave the points' sums 2774.71329906577 on an Intel Xeon and 2774.7132795155667
+#: on an AMD EPYC, 7e-9 apart relatively); a change to the cameras, the rays or the noise moves them far more.
+RTOL = {"capture": 1e-4, "depth noise": 1e-4, "corrupt scan": 1e-6}
 
 
 @pytest.fixture(scope="module")
