@@ -225,6 +225,13 @@ def test_report_only_on_a_clone_reads_the_export_and_keeps_figures(db, tmp_path,
     assert len(_read_csv(reports / "robustness.csv")) > 5
     assert figure.read_bytes() == b"committed render"
     assert not (tmp_path / "fresh" / "results.sqlite").exists()
+    # A second pass gives the same files, index.html included (it names the export and the newest run's time,
+    # not the temporary store or the time of the pass): a fresh clone reproduces the committed reports.
+    first = {p: p.read_bytes() for p in sorted(reports.rglob("*")) if p.is_file()}
+    assert f"from <code>{reports / EXPORT_NAME}</code>" in (reports / "index.html").read_text()
+    rc = main(["-q", "reproduce-tables", "--report-only", "--work", str(tmp_path / "fresh"), "-o", str(reports)])
+    assert rc == 0, capsys.readouterr().err
+    assert {p: p.read_bytes() for p in sorted(reports.rglob("*")) if p.is_file()} == first
 
 
 def test_report_only_without_store_or_export_is_one_line_error(tmp_path, capsys):

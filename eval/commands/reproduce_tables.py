@@ -88,14 +88,15 @@ def run(args) -> int:
 
     check_output_dir(args.out, "-o")
     if args.report_only:
-        from eval.export import keep_tables, report_store
+        from eval.export import EXPORT_NAME, keep_tables, report_store
 
         db = Path(args.db) if args.db else RunnerConfig(work=args.work).db_path
         check_work(args.work, db, write=False)
         # No SQLite store (a fresh clone): the committed export OUT/store/runs.jsonl.gz; no table goes empty.
         with report_store(db, args.out, args.work) as source, keep_tables(args.out):
             paths = write_reports(source, args.out, work=Path(args.work), title="DMesh harness: stored runs",
-                                  renders=not args.no_renders, keys=None)
+                                  renders=not args.no_renders, keys=None,
+                                  source=str(db) if db.is_file() else str(Path(args.out) / EXPORT_NAME))
         print(f"wrote {len(paths)} report files from {db if db.is_file() else 'the store export'}; "
               f"open {Path(args.out) / 'index.html'}")
         return 0

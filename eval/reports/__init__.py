@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import html as _html
 import logging
-from datetime import datetime, timezone
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -49,7 +48,7 @@ def select_runs(df, keys=None):
 
 
 def write_reports(db: str | Path, out: str | Path, work: str | Path | None = None, title: str = "DMesh harness report",
-                  renders: bool = True, progress=None, keys=None) -> list[Path]:
+                  renders: bool = True, progress=None, keys=None, source: str | None = None) -> list[Path]:
     """Regenerates every report file under `out` from the store `db`; returns the written paths.
 
     Args:
@@ -59,6 +58,7 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
         title: heading of index.html.
         renders: False skips the pyrender figures (tables and bar plots only).
         keys: report only these run keys (e.g. a sweep's); None: the latest run of each configuration.
+        source: what index.html names as the runs' source (default: `db`'s path).
     Raises:
         FileNotFoundError: `db` does not exist.
     """
@@ -92,8 +92,11 @@ def write_reports(db: str | Path, out: str | Path, work: str | Path | None = Non
     if renders and len(df):
         done.append(sections.renders_section(df, db, work, out / "figures", progress=progress))
     written = [p for section in done if section for p in section[0]]
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    meta = (f"Generated {stamp} from <code>{_html.escape(str(db))}</code>: "
+    # The time of the newest run, not of this pass: the same runs give the same page (a report-only pass on a
+    # fresh clone reproduces the committed one).
+    finished = df_all["finished_at"].dropna() if "finished_at" in df_all else []
+    stamp = (str(max(finished))[:16].replace("T", " ") + " UTC") if len(finished) else "no runs"
+    meta = (f"Runs up to {stamp}, from <code>{_html.escape(source or str(db))}</code>: "
             + ", ".join(f"{v} {k}" for k, v in sorted(counts.items())) + " runs.")
     written.append(write_index(out, [s[1:] for s in done if s], title, meta))
     return written
