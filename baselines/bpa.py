@@ -8,13 +8,9 @@ the largest ball. Two settings, each with its source:
 - `backend: open3d` (default, row `bpa`): radii {1, 2, 4, 8} x the mean nearest-neighbour spacing of the
   input. Open3D's tutorial (`surface_reconstruction.ipynb`) pivots a doubling list of radii, and its
   maintainer (Open3D issue #2733) advises deriving the radii from the point density; the first radius at the
-  spacing, then doubling, is that advice made concrete. Four radii, not three: where the density varies (an
-  8x contrast, a scan) the mean spacing is the dense side's, and balls of up to 4 spacings fall through the
-  sparse side. On the dev split the fourth took the non-uniform inputs from 2.3-5.6x their clean figure to
-  1.3-1.6x and halved the closed shapes' scans (clean: 1-10 % better, but the wavy sheet 15 % worse); a fifth
-  (16) capped an open sheet's rim (clean wavy_sheet 0.028 -> 0.046e-3) and slowed scans 3-6x
-  (studies/reports/bpa_radii.md). The input normals are used (Open3D's BPA
-  "assumes that the PointCloud has normals"); without them they are estimated from `normal_k` neighbours.
+  spacing, then doubling, is that advice made concrete. Four radii, not three, so that a ball spans the sparse
+  side where the density varies (chosen on the dev split: studies/reports/bpa_radii.md). The input normals
+  are used (Open3D's BPA "assumes that the PointCloud has normals"); without them they are estimated from `normal_k` neighbours.
 - `backend: meshlab` (row `bpa [backend=meshlab]`): MeshLab's own filter at its defaults (pymeshlab
   `generate_surface_reconstruction_ball_pivoting`, `ballradius` 0 = automatic, clustering 20 %, crease angle
   90 degrees). vcglib's automatic radius is one ball of r = bbox diagonal / sqrt(N) (`ball_pivoting.h`);
