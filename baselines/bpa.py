@@ -10,7 +10,8 @@ the largest ball. Two settings, each with its source:
   maintainer (Open3D issue #2733) advises deriving the radii from the point density; the first radius at the
   spacing, then doubling, is that advice made concrete. Four radii, not three, so that a ball spans the sparse
   side where the density varies (chosen on the dev split: studies/reports/bpa_radii.md). The input normals
-  are used (Open3D's BPA "assumes that the PointCloud has normals"); without them they are estimated from `normal_k` neighbours.
+  are used (Open3D's BPA "assumes that the PointCloud has normals"); without them they are estimated from
+  `normal_k` neighbours.
 - `backend: meshlab` (row `bpa [backend=meshlab]`): MeshLab's own filter at its defaults (pymeshlab
   `generate_surface_reconstruction_ball_pivoting`, `ballradius` 0 = automatic, clustering 20 %, crease angle
   90 degrees). vcglib's automatic radius is one ball of r = bbox diagonal / sqrt(N) (`ball_pivoting.h`);
