@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from dmesh.surface import STAGES
@@ -38,3 +39,9 @@ def test_summary_compares_each_variant_with_all_on_the_same_runs():
     assert np.isclose(out["-lids"]["cd_vs_all"], (3.0 + 1.0) / 2) and out["-lids"]["worst_vs_all"] == 3.0
     assert out["all"]["cd_vs_all"] == 1.0 and out["-lids"]["rim_vs_gt"] == 0.5
     assert [r["variant"] for r in ablation.summary(rows)] == ["all", "-lids"]
+
+
+def test_variants_filter_keeps_all_and_rejects_unknown_names():
+    assert [n for n, _ in ablation.variants(["-fins", "mode=open"])] == ["all", "-fins", "mode=open"]
+    with pytest.raises(ValueError, match="-nonesuch"):
+        ablation.variants(["-nonesuch"])

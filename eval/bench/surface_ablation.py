@@ -8,7 +8,8 @@ one `-STAGE` variant per stage `STAGES` does not mark required, and the three mo
 Protocol: point-cloud input as Table 2's (`eval/sweeps/paper.yaml` on the dev split, `test.yaml` on the test
 split: 100K samples with normals from the harness's input cache, `--work`), or with `--input scan` the
 robustness sweeps' noise-free 6-camera scan of the same shapes (occlusion holes and unseen stretches, where the
-hole-closing stages act; rows under split "dev scan"), DMesh's `fast` preset as the harness runs it (no private
+hole-closing stages act; rows under split "dev scan"), with `--input noisy_scan` its realistic scan and with
+`--input outliers` the cloud with 5 % outliers (where the debris stages act), DMesh's `fast` preset as the harness runs it (no private
 filter), reconstructed once per shape and seed; the surface step then runs every variant on the same final
 triangulation (`dmesh.surface.replay.run_variants`: the stages before the one a variant leaves out run once for
 all variants, each variant's mesh is the step's own for its config, and its seconds are its own stages').
@@ -37,13 +38,19 @@ COLUMNS = ("split", "class", "shape", "seed", "variant", "cd_p2s", "boundary_edg
            "gt_boundary_length", "components", "gt_components", "watertight", "faces", "seconds")
 
 
-def variants() -> list[tuple[str, dict]]:
-    """(name, `SurfaceConfig.with_overrides` mapping) of every variant, generated from `dmesh.surface.STAGES`."""
+def variants(only: list[str] | None = None) -> list[tuple[str, dict]]:
+    """(name, `SurfaceConfig.with_overrides` mapping) of every variant, generated from `dmesh.surface.STAGES`;
+    `only`: those named (and `all`, which every ratio needs)."""
     from dmesh.surface import STAGES
 
     out = [("all", {})]
     out += [(f"-{s.name}", {"skip": [s.name]}) for s in STAGES if not s.required]
     out += [("mode=closed", {"mode": "closed"}), ("mode=open", {"mode": "open"})]
+    if only:
+        unknown = sorted(set(only) - {name for name, _ in out})
+        if unknown:
+            raise ValueError(f"unknown ablation variant(s) {', '.join(unknown)}")
+        out = [(name, o) for name, o in out if name == "all" or name in only]
     return out
 
 
@@ -72,9 +79,13 @@ def _figures(mesh, gt, n: int, seed: int) -> dict:
             "watertight": bool(stats.get("watertight")), "faces": int(len(f))}
 
 
-#: Input variants: the clean cloud (Table 2's) and the noise-free 6-camera scan of the robustness sweeps
-#: (`eval/sweeps/robustness.yaml`: occlusion holes and unseen stretches, where lids, spans and fairing act).
-INPUTS = {"clean": {}, "scan": {"corruption": {"scan": 6}}}
+#: Input variants: the clean cloud (Table 2's), the noise-free 6-camera scan of the robustness sweeps
+#: (`eval/sweeps/robustness.yaml`: occlusion holes and unseen stretches, where lids, spans and fairing act), its
+#: realistic scan (range noise, 1 % outliers, estimated normals: where stray pieces and crumbs appear) and the raw
+#: cloud with 5 % outliers (DMesh's rows in the robustness tables filter nothing by themselves).
+INPUTS = {"clean": {}, "scan": {"corruption": {"scan": 6}},
+          "noisy_scan": {"corruption": {"scan": 6, "noise": 0.0025, "outliers": 0.01}},
+          "outliers": {"corruption": {"outliers": 0.05}}}
 
 
 def _state(shape: str, seed: int, work: Path, n_points: int, variant: dict | None = None):
@@ -100,7 +111,7 @@ def _state(shape: str, seed: int, work: Path, n_points: int, variant: dict | Non
 
 
 def _run_shape(split: str, cls: str, shape: str, seed: int, work: Path, n: int, points: int,
-               variant: dict | None = None) -> list[dict]:
+               variant: dict | None = None, only: list[str] | None = None) -> list[dict]:
     import trimesh
 
     from dmesh.extract import to_trimesh
@@ -111,7 +122,7 @@ def _run_shape(split: str, cls: str, shape: str, seed: int, work: Path, n: int, 
     gt_components = int(len(trimesh.graph.connected_components(gt.face_adjacency, nodes=np.arange(len(gt.faces)))))
     # Every variant at once: the stages before the one a variant leaves out run once for all (each result is the
     # step's own for its config); a variant's seconds are its stages' own, shared ones included.
-    configs = {name: cfg.surface.with_overrides(overrides) for name, overrides in variants()}
+    configs = {name: cfg.surface.with_overrides(overrides) for name, overrides in variants(only)}
     surfaces = run_variants(pd, walls, (unit, normals), unit, configs)
     rows = []
     for name, surface in surfaces.items():
@@ -212,10 +223,16 @@ def cli(argv=None) -> int:
     p.add_argument("--points", type=int, default=100_000, help="input samples (Table 2: 100K)")
     p.add_argument("--input", choices=sorted(INPUTS), default="clean",
                    help="clean: Table 2's cloud; scan: the robustness sweeps' noise-free 6-camera scan (rows under "
-                        "split 'SPLIT scan')")
+                        "split 'SPLIT scan'); noisy_scan: its realistic scan; outliers: the clean cloud with 5 %% "
+                        "outliers")
+    p.add_argument("--variants", nargs="+", help="only these variants (and all), e.g. -crumbs mode=open")
     p.add_argument("--out", default="reports")
     args = p.parse_args(argv)
     label = args.split if args.input == "clean" else f"{args.split} {args.input}"
+    try:
+        variants(args.variants)
+    except ValueError as exc:
+        p.error(str(exc))
     out, work = Path(args.out), Path(args.work)
     path = out / "bench_surface_ablation_runs.csv"
     rows = _read(path)
@@ -226,7 +243,8 @@ def cli(argv=None) -> int:
             if (label, shape, str(seed)) in done:
                 continue
             try:
-                new = _run_shape(label, cls, shape, seed, work, args.metric_samples, args.points, INPUTS[args.input])
+                new = _run_shape(label, cls, shape, seed, work, args.metric_samples, args.points, INPUTS[args.input],
+                                 args.variants)
             except Exception as exc:  # a failed shape is reported and the ablation goes on
                 log.error("%s seed %d failed: %s", shape, seed, exc)
                 continue
