@@ -43,5 +43,6 @@ def test_summary_compares_each_variant_with_all_on_the_same_runs():
 
 def test_variants_filter_keeps_all_and_rejects_unknown_names():
     assert [n for n, _ in ablation.variants(["-fins", "mode=open"])] == ["all", "-fins", "mode=open"]
+    assert [n for n, _ in ablation.variants(["fins"])] == ["all", "-fins"]
     with pytest.raises(ValueError, match="-nonesuch"):
         ablation.variants(["-nonesuch"])

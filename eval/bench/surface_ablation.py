@@ -40,13 +40,14 @@ COLUMNS = ("split", "class", "shape", "seed", "variant", "cd_p2s", "boundary_edg
 
 def variants(only: list[str] | None = None) -> list[tuple[str, dict]]:
     """(name, `SurfaceConfig.with_overrides` mapping) of every variant, generated from `dmesh.surface.STAGES`;
-    `only`: those named (and `all`, which every ratio needs)."""
+    `only`: those named (and `all`, which every ratio needs), a stage's name standing for its `-STAGE` variant."""
     from dmesh.surface import STAGES
 
     out = [("all", {})]
     out += [(f"-{s.name}", {"skip": [s.name]}) for s in STAGES if not s.required]
     out += [("mode=closed", {"mode": "closed"}), ("mode=open", {"mode": "open"})]
-    if only:
+    if only:  # a stage's name stands for its `-STAGE` variant (argparse reads "-lids" as an option)
+        only = [f"-{name}" if f"-{name}" in dict(out) else name for name in only]
         unknown = sorted(set(only) - {name for name, _ in out})
         if unknown:
             raise ValueError(f"unknown ablation variant(s) {', '.join(unknown)}")
@@ -225,7 +226,7 @@ def cli(argv=None) -> int:
                    help="clean: Table 2's cloud; scan: the robustness sweeps' noise-free 6-camera scan (rows under "
                         "split 'SPLIT scan'); noisy_scan: its realistic scan; outliers: the clean cloud with 5 %% "
                         "outliers")
-    p.add_argument("--variants", nargs="+", help="only these variants (and all), e.g. -crumbs mode=open")
+    p.add_argument("--variants", nargs="+", help="only these variants (and all): stage names for their -STAGE variants, e.g. crumbs mode=open")
     p.add_argument("--out", default="reports")
     args = p.parse_args(argv)
     label = args.split if args.input == "clean" else f"{args.split} {args.input}"
