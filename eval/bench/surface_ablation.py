@@ -196,8 +196,11 @@ def write_report(rows: list[dict], out: Path) -> None:
             "the `all` variant's on the same run, `worst_vs_all` the largest; `rim_vs_gt` boundary length over the "
             "GT's (shapes with a boundary); `watertight` counts runs. A stage pays where leaving it out makes "
             "`cd_vs_all` > 1, the rim further from the GT's, or fewer runs watertight. A stage that no variant shows "
-            "paying on the dev split, clean or scanned, goes (issue 59): `folds` went this way (into `split_fans`), "
-            "so its rows are of the code before.")
+            "paying on the dev split, clean, scanned or with outliers, goes (issue 59): `folds` went this way (into "
+            "`split_fans`), so its rows are of the code before. Every other stage pays on some dev input (the "
+            "verdict per stage: docs/surface.md), but for two: `reopen` acts only on shapes with cut ends, which "
+            "the dev split lacks (on the test split it pays most of all), and `revote` only on the coarse meshes "
+            "of the gradient presets (`python -m studies revote`), which this ablation of `fast` does not run.")
     write(out, "bench_surface_ablation", "Surface step ablation", intro, table, summary(rows))
 
 
