@@ -130,6 +130,8 @@ class _Lambda(torch.autograd.Function):
             p_real = wts[0] * r[0] + wts[1] * r[1] + wts[2] * r[2]
         ctx.saved = (nw, passes, s, p_real, wts, faces, None if reals is None else (len(reals), reals.dtype),
                      alpha, pv_wdt.dtype, pv_non.dtype)
+        # Outputs that nothing differentiates (usually all but Lambda) get None, not a tensor of zeros.
+        ctx.set_materialize_grads(False)
         outs = (delta, s, p_real, s * p_real)
         return tuple(torch.from_numpy(np.ascontiguousarray(o, dtype=_numpy_dtype(dtype))) for o in outs)
 
@@ -139,17 +141,26 @@ class _Lambda(torch.autograd.Function):
         # One gradient per forward input: pv_wdt, pv_non, reals, then None for faces, alpha, alpha_real,
         # dtype.
         nw, passes, s, p_real, wts, faces, reals_info, alpha, dt_w, dt_n = ctx.saved
-        g_delta, g_wdt, g_real, g_prob = (g.numpy().astype(np.float64) for g in (g_delta, g_wdt, g_real, g_prob))
-        gd = g_delta + np.where(passes, (g_wdt + g_prob * p_real) * (alpha * s * (1.0 - s)), 0.0)
+        g_delta, g_wdt, g_real, g_prob = (None if g is None else g.numpy().astype(np.float64)
+                                          for g in (g_delta, g_wdt, g_real, g_prob))
+        # d/dDelta of Lambda_wdt's two uses (itself, and Lambda = Lambda_wdt Lambda_real); a missing gradient
+        # is zero.
+        g_s = g_wdt if g_prob is None else (g_prob * p_real if g_wdt is None else g_wdt + g_prob * p_real)
+        if g_s is None:
+            gd = np.zeros(len(s)) if g_delta is None else g_delta
+        else:
+            gd = np.where(passes, g_s * (alpha * s * (1.0 - s)), 0.0)
+            if g_delta is not None:
+                gd = g_delta + gd
         gd3 = gd / 3.0
         g_pv_w = np.empty((nw, 3))
         g_pv_w[:] = gd3[:nw, None]
         g_pv_n = np.empty((len(gd3) - nw, 3))
         g_pv_n[:] = -gd3[nw:, None]
         g_reals = None
-        if reals_info is not None and ctx.needs_input_grad[2]:
+        if reals_info is not None and ctx.needs_input_grad[2] and (g_real is not None or g_prob is not None):
             n, r_dtype = reals_info
-            gr = g_real + g_prob * s
+            gr = g_prob * s if g_real is None else (g_real if g_prob is None else g_real + g_prob * s)
             # One bincount (a fixed, sequential order: deterministic) over the three vertex columns.
             ids = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])
             g_reals = torch.from_numpy(np.bincount(ids, np.concatenate([gr * w for w in wts]), minlength=n))
@@ -325,8 +336,10 @@ def face_probabilities(points: torch.Tensor, weights: torch.Tensor, reals: torch
     with stage(timings, "probabilities"):
         faces_np = np.concatenate([pd.faces.astype(np.int64), cand])
         faces = torch.from_numpy(faces_np)
-        in_wdt = torch.zeros(len(faces), dtype=torch.bool)
+        # In NumPy: torch would fill these 1e5-1e6 entries in an OpenMP loop, whose idle threads then spin.
+        in_wdt = np.zeros(len(faces_np), dtype=bool)
         in_wdt[: len(pd.faces)] = True
+        in_wdt = torch.from_numpy(in_wdt)
         dtype = points.dtype
         if cfg.impl == "native" and not cfg.power_cell_factor:
             delta, p_wdt, p_real, prob = _Lambda.apply(per_vertex, per_vertex_non, reals, faces_np, cfg.alpha,

@@ -160,3 +160,18 @@ def test_orthocentres_gradcheck():
         return deltas.orthocentres(pp, ww, deltas.delta_diagram(pp, ww, pd))
 
     assert torch.autograd.gradcheck(f, (pt, wt), nondet_tol=0.0)
+
+
+def test_neighbour_rows_are_exact_where_the_power_diagram_runs_in_parallel():
+    # Above native kParallelMin (20000) points the power diagram builds its neighbour rows (which the Delta
+    # kernels' half-spaces and the neighbour cache read) on several threads, each with its own marks for
+    # dropping repeats (kept across calls): every row must be the sorted set of the point's tet mates, also
+    # on a second diagram of the same points.
+    p, w, pd = _config(21000, seed=16, scale=0.1)
+    pd = wdt.PowerDiagram(p, w, pd.tets, pd.neighbors)
+    t = pd.tets.astype(np.int64)
+    pairs = np.concatenate([t[:, [a, b]] for a in range(4) for b in range(4) if a != b])
+    pairs = np.unique(pairs, axis=0)  # rows ascending, then neighbours ascending
+    nb = pd.point_neighbors
+    assert np.array_equal(nb.offsets, np.concatenate([[0], np.cumsum(np.bincount(pairs[:, 0], minlength=len(p)))]))
+    assert np.array_equal(nb.indices, pairs[:, 1])

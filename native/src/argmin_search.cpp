@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include "parallel.h"
+
 namespace dmesh {
 namespace {
 
@@ -144,20 +146,24 @@ Csr merge_csr(const index_t* off_a, const index_t* idx_a, const index_t* off_b, 
   std::vector<index_t> len(rows);
   std::vector<index_t> tmp(static_cast<std::size_t>(off_a[rows]) + off_b[rows]);
   // Merge each row into tmp at offset off_a[r] + off_b[r], then compact.
-#pragma omp parallel for schedule(dynamic, 512) if (rows > kParallelMin)
-  for (index_t r = 0; r < rows; ++r) {
-    index_t* dst = tmp.data() + off_a[r] + off_b[r];
-    index_t* end = std::set_union(idx_a + off_a[r], idx_a + off_a[r + 1], idx_b + off_b[r], idx_b + off_b[r + 1], dst);
-    len[r] = static_cast<index_t>(end - dst);
-  }
+  const int nt = threads_for(0, std::size_t(rows), kParallelMin);
+  parallel_ranges(rows, 512, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t r = index_t(lo); r < index_t(hi); ++r) {
+      index_t* dst = tmp.data() + off_a[r] + off_b[r];
+      index_t* end =
+          std::set_union(idx_a + off_a[r], idx_a + off_a[r + 1], idx_b + off_b[r], idx_b + off_b[r + 1], dst);
+      len[r] = static_cast<index_t>(end - dst);
+    }
+  });
   Csr out;
   out.offsets.assign(rows + 1, 0);
   for (index_t r = 0; r < rows; ++r) out.offsets[r + 1] = out.offsets[r] + len[r];
   out.indices.resize(out.offsets[rows]);
-#pragma omp parallel for schedule(dynamic, 512) if (rows > kParallelMin)
-  for (index_t r = 0; r < rows; ++r) {
-    std::copy_n(tmp.data() + off_a[r] + off_b[r], len[r], out.indices.data() + out.offsets[r]);
-  }
+  parallel_ranges(rows, 512, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t r = index_t(lo); r < index_t(hi); ++r) {
+      std::copy_n(tmp.data() + off_a[r] + off_b[r], len[r], out.indices.data() + out.offsets[r]);
+    }
+  });
   return out;
 }
 

@@ -11,9 +11,7 @@
 #include <sys/mman.h>
 #endif
 
-#ifdef _OPENMP
-#include <omp.h>
-#endif
+#include "parallel.h"
 
 namespace dmesh {
 namespace {
@@ -33,19 +31,6 @@ inline real_t dot(V a, V b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
 inline V cross(V a, V b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
 inline real_t sgn(real_t v) { return v > 0 ? 1.0 : (v < 0 ? -1.0 : 0.0); }
 inline bool is_zero(V a) { return a.x == 0 && a.y == 0 && a.z == 0; }
-
-// Threads for a loop over `size` elements: num_threads > 0 forces that many; 0 uses the OpenMP default
-// above `threshold` elements and one thread below.
-inline int threads_for(int num_threads, std::size_t size, std::size_t threshold) {
-  if (num_threads > 0) return num_threads;
-#ifdef _OPENMP
-  return size > threshold ? omp_get_max_threads() : 1;
-#else
-  (void)size;
-  (void)threshold;
-  return 1;
-#endif
-}
 
 // Uninitialised scratch of n elements. Large blocks are 2 MiB aligned and marked for transparent huge
 // pages: the first touch of hundreds of MB of fresh 4 KiB pages (one fault each) costs more than the
@@ -98,14 +83,9 @@ PointGradient reduce_slots(index_t N, std::initializer_list<const SlotArray*> se
   std::size_t total = 0;
   for (const SlotArray* s : segments) total += s->n;
   const int nt = threads_for(num_threads, total, std::size_t(4) * kParallelMin);
-#pragma omp parallel num_threads(nt) if (nt > 1)
-  {
-    int count = 1, tid = 0;
-#ifdef _OPENMP
-    count = omp_get_num_threads();
-    tid = omp_get_thread_num();
-#endif
-    const index_t lo = index_t(std::int64_t(N) * tid / count), hi = index_t(std::int64_t(N) * (tid + 1) / count);
+  // Part `part` of `nt` owns the point ids [N part / nt, N (part + 1) / nt).
+  parallel_ranges(nt, 1, nt, [&](std::int64_t part, std::int64_t) {
+    const index_t lo = index_t(std::int64_t(N) * part / nt), hi = index_t(std::int64_t(N) * (part + 1) / nt);
     real_t* gp = out.points.data();
     real_t* gw = out.weights.data();
     for (const SlotArray* seg : segments) {
@@ -121,7 +101,7 @@ PointGradient reduce_slots(index_t N, std::initializer_list<const SlotArray*> se
         gw[i] += v[3];
       }
     }
-  }
+  });
   return out;
 }
 
@@ -372,6 +352,71 @@ inline bool bisector_plane(V pi, real_t wi, V pj, real_t wj, real_t* pl) {
   return true;
 }
 
+// The edges of one power cell as seen by the candidate search, structure of arrays: start a (an
+// orthocentre), end b (an orthocentre, or a hull ray's unit direction), seg (1 for a segment, 0 for a ray)
+// and tmax (1 for a segment, infinity for a ray).
+struct CellEdges {
+  std::vector<real_t> ax, ay, az, bx, by, bz, seg, tmax, d2;
+  void clear() {
+    for (auto* v : {&ax, &ay, &az, &bx, &by, &bz, &seg, &tmax}) v->clear();
+  }
+  void push(V a, V b, bool ray) {
+    ax.push_back(a.x);
+    ay.push_back(a.y);
+    az.push_back(a.z);
+    bx.push_back(b.x);
+    by.push_back(b.y);
+    bz.push_back(b.z);
+    seg.push_back(ray ? 0.0 : 1.0);
+    tmax.push_back(ray ? kInf : 1.0);
+  }
+};
+
+// d2[k] = squared distance between the line (o, u) and edge k, measured in the plane normal to u with the
+// orthonormal basis (b1, b2): both ends are projected (a segment's end relative to o, a ray's direction
+// without the shift), then the nearest point of the projected edge to the line's trace. Elementwise
+// arithmetic with no data-dependent branch, so the compiler vectorises it; compiled for AVX2 too (without
+// FMA, which would round differently) and chosen at run time: the values are the same either way.
+// A degenerate edge (ee = 0, so ae = 0) gets t = 0 through the floor on the denominator; max(t, 0) is
+// (t + |t|) / 2, exact.
+#if defined(__x86_64__) && defined(__linux__) && defined(__GNUC__)
+#define DMESH_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define DMESH_AVX2_CLONES
+#endif
+DMESH_AVX2_CLONES void edge_distances(index_t ne, const CellEdges& e, V o, V b1, V b2, real_t* __restrict d2) {
+  const real_t* __restrict ax = e.ax.data();
+  const real_t* __restrict ay = e.ay.data();
+  const real_t* __restrict az = e.az.data();
+  const real_t* __restrict bx = e.bx.data();
+  const real_t* __restrict by = e.by.data();
+  const real_t* __restrict bz = e.bz.data();
+  const real_t* __restrict sg = e.seg.data();
+  const real_t* __restrict tm = e.tmax.data();
+  for (index_t k = 0; k < ne; ++k) {
+    const real_t rax = ax[k] - o.x, ray = ay[k] - o.y, raz = az[k] - o.z;
+    const real_t pax = rax * b1.x + ray * b1.y + raz * b1.z;
+    const real_t pay = rax * b2.x + ray * b2.y + raz * b2.z;
+    const real_t s = sg[k];
+    const real_t rbx = bx[k] - s * o.x, rby = by[k] - s * o.y, rbz = bz[k] - s * o.z;
+    const real_t pbx = rbx * b1.x + rby * b1.y + rbz * b1.z;
+    const real_t pby = rbx * b2.x + rby * b2.y + rbz * b2.z;
+    const real_t ex = pbx - s * pax, ey = pby - s * pay;
+    const real_t ee = ex * ex + ey * ey;
+    real_t t = -(pax * ex + pay * ey) / (ee > 1e-300 ? ee : 1e-300);
+    t = 0.5 * (t + std::abs(t));
+    t = t < tm[k] ? t : tm[k];
+    const real_t qx = pax + t * ex, qy = pay + t * ey;
+    d2[k] = qx * qx + qy * qy;
+  }
+}
+
+// The half-spaces of a point's power cell against its neighbours j, structure of arrays: d = p_j - p_i,
+// c = |d|^2 - (w_j - w_i), and the tolerance 1e-12 (|d|^2 + 1).
+struct HalfSpaces {
+  std::vector<real_t> dx, dy, dz, c, tol;
+};
+
 // The points that own a cell, ordered by their first (lowest-id) tet. Tets come out of the triangulation in
 // a spatially coherent order, point ids need not (a point cloud's ids are arbitrary): visiting points in
 // this order keeps the faces, samples and orthocentres that consecutive points touch close in memory.
@@ -394,24 +439,26 @@ std::vector<index_t> points_in_tet_order(const DiagramView& dv) {
 std::vector<real_t> delta_orthocentres(const DiagramView& dv, int num_threads) {
   std::vector<real_t> out(3 * static_cast<std::size_t>(dv.T));
   const int nt = threads_for(num_threads, std::size_t(dv.T), kParallelMin);
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
-  for (index_t t = 0; t < dv.T; ++t) {
-    const Ortho o = orthocentre(dv, t);
-    const V c = o.p0 + o.x;
-    out[3 * static_cast<std::size_t>(t)] = c.x;
-    out[3 * static_cast<std::size_t>(t) + 1] = c.y;
-    out[3 * static_cast<std::size_t>(t) + 2] = c.z;
-  }
+  parallel_ranges(dv.T, grain_for(dv.T, nt, 1024), nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t t = index_t(lo); t < index_t(hi); ++t) {
+      const Ortho o = orthocentre(dv, t);
+      const V c = o.p0 + o.x;
+      out[3 * static_cast<std::size_t>(t)] = c.x;
+      out[3 * static_cast<std::size_t>(t) + 1] = c.y;
+      out[3 * static_cast<std::size_t>(t) + 2] = c.z;
+    }
+  });
   return out;
 }
 
 PointGradient orthocentre_adjoint(const DiagramView& dv, const real_t* grad, int num_threads) {
   SlotArray tet(4 * static_cast<std::size_t>(dv.T));
   const int nt = threads_for(num_threads, std::size_t(dv.T), kParallelMin);
-#pragma omp parallel for schedule(static) num_threads(nt) if (nt > 1)
-  for (index_t t = 0; t < dv.T; ++t) {
-    store_orthocentre_adjoint(dv, t, load(grad + 3 * static_cast<std::size_t>(t)), tet);
-  }
+  parallel_ranges(dv.T, grain_for(dv.T, nt, 1024), nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t t = index_t(lo); t < index_t(hi); ++t) {
+      store_orthocentre_adjoint(dv, t, load(grad + 3 * static_cast<std::size_t>(t)), tet);
+    }
+  });
   return reduce_slots(dv.N, {&tet}, num_threads);
 }
 
@@ -442,20 +489,19 @@ ExistingDeltaResult existing_delta_forward(const DiagramView& dv, const index_t*
   const std::vector<index_t> order = points_in_tet_order(dv);
   const index_t n_order = index_t(order.size());
   const int nt = threads_for(num_threads, std::size_t(K), kParallelMin);
-#pragma omp parallel num_threads(nt) if (nt > 1)
-  {
-#pragma omp for schedule(static)
-    for (index_t k = 0; k < K; ++k) {
+  parallel_ranges(K, grain_for(K, nt, 1024), nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t k = index_t(lo); k < index_t(hi); ++k) {
       const V s = edge_sample(dv, face_ids[k], ray_length);
       const index_t* fv = dv.faces + 3 * static_cast<std::size_t>(face_ids[k]);
       recs[k] = Row{{s.x, s.y, s.z}, {fv[0], fv[1], fv[2]}, 0};
     }
-    // Per point i: its cached bisector planes (unit normal n, offset t |d| along it from p_i, neighbour j),
-    // then every requested face containing i: delta = min_j |(s - p_i).n_j - t_j| over j not in the face.
+  });
+  // Per point i: its cached bisector planes (unit normal n, offset t |d| along it from p_i, neighbour j),
+  // then every requested face containing i: delta = min_j |(s - p_i).n_j - t_j| over j not in the face.
+  parallel_ranges(n_order, 64, nt, [&](std::int64_t lo, std::int64_t hi) {
     std::vector<real_t> planes;
     std::vector<index_t> plane_j;
-#pragma omp for schedule(dynamic, 64)
-    for (index_t oi = 0; oi < n_order; ++oi) {
+    for (index_t oi = index_t(lo); oi < index_t(hi); ++oi) {
       const index_t i = order[oi];
       const index_t fb = dv.pf_offsets[i], fe = dv.pf_offsets[i + 1];
       bool any = false;
@@ -516,7 +562,7 @@ ExistingDeltaResult existing_delta_forward(const DiagramView& dv, const index_t*
         out.dist[slot] = best;
       }
     }
-  }
+  });
   for (const auto& [k, first] : repeats) {
     for (int v = 0; v < 3; ++v) {
       out.neighbour[3 * k + v] = out.neighbour[3 * first + v];
@@ -545,11 +591,9 @@ PointGradient existing_delta_backward(const DiagramView& dv, const index_t* face
   SlotArray tet(4 * static_cast<std::size_t>(dv.T)); // per tet: its 4 vertices
   std::vector<V> gsample(static_cast<std::size_t>(R));
   const int nt = threads_for(num_threads, std::size_t(R), kParallelMin);
-#pragma omp parallel num_threads(nt) if (nt > 1)
-  {
-    // 1. Bisector terms and the gradient with respect to each row's sample point.
-#pragma omp for schedule(static)
-    for (index_t r = 0; r < R; ++r) {
+  // 1. Bisector terms and the gradient with respect to each row's sample point.
+  parallel_ranges(R, grain_for(R, nt, 1024), nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t r = index_t(lo); r < index_t(hi); ++r) {
       const index_t k = rows[r];
       const index_t f = face_ids[k];
       const index_t* fv = dv.faces + 3 * static_cast<std::size_t>(f);
@@ -579,10 +623,11 @@ PointGradient existing_delta_backward(const DiagramView& dv, const index_t* face
       }
       gsample[r] = gs;
     }
-    // 2. Each tet gathers the sample gradients of its faces (half of a segment's midpoint, all of a ray's
-    // start) and writes its orthocentre's adjoint once.
-#pragma omp for schedule(static)
-    for (index_t t = 0; t < dv.T; ++t) {
+  });
+  // 2. Each tet gathers the sample gradients of its faces (half of a segment's midpoint, all of a ray's
+  // start) and writes its orthocentre's adjoint once.
+  parallel_ranges(dv.T, grain_for(dv.T, nt, 1024), nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t t = index_t(lo); t < index_t(hi); ++t) {
       V gc = {0.0, 0.0, 0.0};
       for (int m = 0; m < 4; ++m) {
         const index_t f = dv.tet_faces[4 * static_cast<std::size_t>(t) + m];
@@ -591,7 +636,7 @@ PointGradient existing_delta_backward(const DiagramView& dv, const index_t* face
       }
       store_orthocentre_adjoint(dv, t, gc, tet);
     }
-  }
+  });
   // 3. Hull rows: the ray direction's dependence on the face's vertices (few rows, in row order).
   std::vector<index_t> hull_rows;
   for (index_t r = 0; r < R; ++r) {
@@ -628,20 +673,21 @@ CandidateDeltaResult candidate_delta_forward(const DiagramView& dv, const index_
   };
   std::vector<Line> lines(static_cast<std::size_t>(C));
   const int nt_lines = threads_for(num_threads, std::size_t(C), kParallelMin);
-#pragma omp parallel for schedule(static) num_threads(nt_lines) if (nt_lines > 1)
-  for (index_t c = 0; c < C; ++c) {
-    const DualLine L = dual_line(dv, cand + 3 * static_cast<std::size_t>(c));
-    Line& ln = lines[c];
-    ln.ok = L.ok;
-    if (!L.ok) continue;
-    ln.o = L.o;
-    ln.u = L.u;
-    const real_t ax = std::abs(L.u.x), ay = std::abs(L.u.y), az = std::abs(L.u.z);
-    const V axis = (ax <= ay && ax <= az) ? V{1, 0, 0} : (ay <= az ? V{0, 1, 0} : V{0, 0, 1});
-    const V b1 = cross(L.u, axis);
-    ln.b1 = b1 * (1.0 / std::sqrt(dot(b1, b1)));
-    ln.b2 = cross(L.u, ln.b1);
-  }
+  parallel_ranges(C, grain_for(C, nt_lines, 1024), nt_lines, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t c = index_t(lo); c < index_t(hi); ++c) {
+      const DualLine L = dual_line(dv, cand + 3 * static_cast<std::size_t>(c));
+      Line& ln = lines[c];
+      ln.ok = L.ok;
+      if (!L.ok) continue;
+      ln.o = L.o;
+      ln.u = L.u;
+      const real_t ax = std::abs(L.u.x), ay = std::abs(L.u.y), az = std::abs(L.u.z);
+      const V axis = (ax <= ay && ax <= az) ? V{1, 0, 0} : (ay <= az ? V{0, 1, 0} : V{0, 0, 1});
+      const V b1 = cross(L.u, axis);
+      ln.b1 = b1 * (1.0 / std::sqrt(dot(b1, b1)));
+      ln.b2 = cross(L.u, ln.b1);
+    }
+  });
 
   // 2. The (candidate, vertex) slots of each point, in slot order (counting sort).
   std::vector<index_t> slot_off(static_cast<std::size_t>(N) + 1, 0);
@@ -659,21 +705,22 @@ CandidateDeltaResult candidate_delta_forward(const DiagramView& dv, const index_
     }
   }
 
-  // 3. Per point: its cell (vertices = orthocentres of its tets, then the directions of its hull rays;
-  // edges = the dual edges of its faces, as local vertex pairs: a segment from v[a] to v[b], or a ray from
-  // v[a] along the direction v[b]) and the half-spaces against its neighbours, loaded once; then per slot
-  // the crossing test and the nearest edge, measured in the 2D projection along the line (the same
-  // distance as in 3D). The chosen edge's distance is recomputed in 3D (what the backward differentiates).
+  // 3. Per point: its cell (the dual edges of its faces, in face order: a segment between two orthocentres
+  // of its tets, or a ray from one along a hull face's direction, as CellEdges) and the half-spaces against
+  // its neighbours, loaded once; then per slot the crossing test and the nearest edge, measured in the 2D
+  // projection along the line (the same distance as in 3D; edge_distances), the first edge in face order
+  // on a tie. The chosen edge's distance is recomputed in 3D (what the backward differentiates).
   const int nt = threads_for(num_threads, std::size_t(slot_off[N]), kParallelMin / 4);
-#pragma omp parallel num_threads(nt) if (nt > 1)
-  {
+  parallel_ranges(N, 64, nt, [&](std::int64_t lo, std::int64_t hi) {
+    // Per tet, its position in the current point's tet list while the cell is built (kNone otherwise): kept
+    // by the thread across ranges and calls, so it is filled once.
+    static thread_local std::vector<index_t> local_tet;
+    if (local_tet.size() < static_cast<std::size_t>(dv.T)) local_tet.assign(dv.T, kNone);
     std::vector<V> cell_v;
-    std::vector<real_t> vx, vy;
-    std::vector<index_t> ea, eb, eg;
-    std::vector<real_t> eseg, etmax;
-    std::vector<real_t> half;  // per neighbour: d (3), |d|^2 - (w_j - w_i), tolerance
-#pragma omp for schedule(dynamic, 64)
-    for (index_t i = 0; i < N; ++i) {
+    std::vector<index_t> eg;
+    CellEdges edges;
+    HalfSpaces half;
+    for (index_t i = index_t(lo); i < index_t(hi); ++i) {
       if (slot_off[i] == slot_off[i + 1]) continue;
       const V pi = load(P + 3 * i);
       const index_t* tb = dv.pt_indices + dv.pt_offsets[i];
@@ -683,63 +730,67 @@ CandidateDeltaResult candidate_delta_forward(const DiagramView& dv, const index_
       auto build_cell = [&]() {
         cell_built = true;
         cell_v.resize(nt_i);
-        for (index_t k = 0; k < nt_i; ++k) cell_v[k] = centre(dv, tb[k]);
-        ea.clear();
-        eb.clear();
+        for (index_t k = 0; k < nt_i; ++k) {
+          cell_v[k] = centre(dv, tb[k]);
+          local_tet[tb[k]] = k;
+        }
         eg.clear();
-        eseg.clear();
-        etmax.clear();
+        edges.clear();
         for (index_t e = dv.pf_offsets[i]; e < dv.pf_offsets[i + 1]; ++e) {
           const index_t g = dv.pf_indices[e];
           const index_t* ft = dv.face_tets + 2 * static_cast<std::size_t>(g);
-          const index_t a = index_t(std::lower_bound(tb, tb + nt_i, ft[0]) - tb);
-          if (a >= nt_i || tb[a] != ft[0]) continue;  // inconsistent input: the face's tet is not the point's
+          const index_t a = local_tet[ft[0]];
+          if (a == kNone) continue;  // inconsistent input: the face's tet is not the point's
           index_t b;
           if (ft[1] == kNone) {
             b = index_t(cell_v.size());
             cell_v.push_back(hull_direction(dv, g, nullptr));
           } else {
-            b = index_t(std::lower_bound(tb, tb + nt_i, ft[1]) - tb);
-            if (b >= nt_i || tb[b] != ft[1]) continue;
+            b = local_tet[ft[1]];
+            if (b == kNone) continue;
           }
-          ea.push_back(a);
-          eb.push_back(b);
           eg.push_back(g);
-          eseg.push_back(ft[1] == kNone ? 0.0 : 1.0);
-          etmax.push_back(ft[1] == kNone ? kInf : 1.0);
+          edges.push(cell_v[a], cell_v[b], ft[1] == kNone);
         }
-        vx.resize(cell_v.size());
-        vy.resize(cell_v.size());
+        edges.d2.resize(eg.size());
+        for (index_t k = 0; k < nt_i; ++k) local_tet[tb[k]] = kNone;
       };
       const index_t nn = dv.nb_offsets[i + 1] - dv.nb_offsets[i];
-      half.resize(5 * static_cast<std::size_t>(nn));
+      for (auto* v : {&half.dx, &half.dy, &half.dz, &half.c, &half.tol}) v->resize(nn);
       for (index_t k = 0; k < nn; ++k) {
         const index_t j = dv.nb_indices[dv.nb_offsets[i] + k];
         const V d = load(P + 3 * j) - pi;
         const real_t dd = dot(d, d);
-        real_t* h = half.data() + 5 * static_cast<std::size_t>(k);
-        h[0] = d.x;
-        h[1] = d.y;
-        h[2] = d.z;
-        h[3] = dd - (W[j] - W[i]);
-        h[4] = 1e-12 * (dd + 1.0);
+        half.dx[k] = d.x;
+        half.dy[k] = d.y;
+        half.dz[k] = d.z;
+        half.c[k] = dd - (W[j] - W[i]);
+        half.tol[k] = 1e-12 * (dd + 1.0);
       }
       for (index_t sl = slot_off[i]; sl < slot_off[i + 1]; ++sl) {
+        // Slots visit their candidates' lines in random order: fetch a few slots ahead.
+        constexpr index_t kAhead = 6;
+        if (sl + kAhead < slot_off[N]) {
+          const char* next = reinterpret_cast<const char*>(&lines[slots[sl + kAhead] / 3]);
+          __builtin_prefetch(next);
+          __builtin_prefetch(next + sizeof(Line) - 1);
+        }
         const index_t s = slots[sl];
         const Line& ln = lines[s / 3];
         // Crossing test (as argmin_search.cpp's line_crosses_cell): the interval of the line where
-        // pow(x, i) <= pow(x, j) for every neighbour j must be non-empty.
+        // pow(x, i) <= pow(x, j) for every neighbour j must be non-empty. The loop stops as soon as it is
+        // empty (a branch-free pass over every neighbour was measured slower: the line misses almost every
+        // cell, after a few neighbours).
         {
           const V rel = ln.o - pi;
           real_t lo = -kInf, hi = kInf;
           bool crosses = true;
           for (index_t k = 0; k < nn && crosses; ++k) {
-            const real_t* h = half.data() + 5 * static_cast<std::size_t>(k);
-            const V d = {h[0], h[1], h[2]};
-            const real_t g = 2 * dot(rel, d) - h[3];
+            const V d = {half.dx[k], half.dy[k], half.dz[k]};
+            const real_t g = 2 * dot(rel, d) - half.c[k];
             const real_t hh = 2 * dot(ln.u, d);
-            if (std::abs(hh) <= h[4]) {
-              if (g > h[4]) crosses = false;
+            if (std::abs(hh) <= half.tol[k]) {
+              if (g > half.tol[k]) crosses = false;
               continue;
             }
             const real_t t = -g / hh;
@@ -764,32 +815,13 @@ CandidateDeltaResult candidate_delta_forward(const DiagramView& dv, const index_
           continue;
         }
         if (!cell_built) build_cell();
-        const index_t nv = index_t(cell_v.size()), ne = index_t(eg.size());
-        // Project the cell onto the plane normal to the line (origin at the line's trace); directions
-        // are projected without the shift.
-        for (index_t k = 0; k < nt_i; ++k) {
-          const V rel = cell_v[k] - ln.o;
-          vx[k] = dot(rel, ln.b1);
-          vy[k] = dot(rel, ln.b2);
-        }
-        for (index_t k = nt_i; k < nv; ++k) {
-          vx[k] = dot(cell_v[k], ln.b1);
-          vy[k] = dot(cell_v[k], ln.b2);
-        }
+        const index_t ne = index_t(eg.size());
+        edge_distances(ne, edges, ln.o, ln.b1, ln.b2, edges.d2.data());
         real_t best = kInf;
         index_t best_e = kNone;
         for (index_t k = 0; k < ne; ++k) {
-          const real_t ax = vx[ea[k]], ay = vy[ea[k]];
-          const real_t ex = vx[eb[k]] - eseg[k] * ax, ey = vy[eb[k]] - eseg[k] * ay;
-          // A degenerate edge (ee = 0, so ae = 0) gets t = 0 through the floor on the denominator. The
-          // clamps are branch-free (a branch on the sign of t is mispredicted half the time): max(t, 0)
-          // is (t + |t|) / 2, exact.
-          real_t t = -(ax * ex + ay * ey) / std::max(ex * ex + ey * ey, 1e-300);
-          t = std::min(0.5 * (t + std::abs(t)), etmax[k]);
-          const real_t qx = ax + t * ex, qy = ay + t * ey;
-          const real_t d2 = qx * qx + qy * qy;
-          if (d2 < best) {
-            best = d2;
+          if (edges.d2[k] < best) {
+            best = edges.d2[k];
             best_e = k;
           }
         }
@@ -801,7 +833,7 @@ CandidateDeltaResult candidate_delta_forward(const DiagramView& dv, const index_
         r.dist[s] = std::sqrt(line_edge_dist2(ln.o, ln.u, a, b, ray, nullptr));
       }
     }
-  }
+  });
   return r;
 }
 
@@ -814,45 +846,46 @@ PointGradient candidate_delta_backward(const DiagramView& dv, const index_t* can
   const index_t R = index_t(rows.size());
   SlotArray slots(static_cast<std::size_t>(R) * M);
   const int nt = threads_for(num_threads, std::size_t(R), kParallelMin / 4);
-#pragma omp parallel for schedule(dynamic, 512) num_threads(nt) if (nt > 1)
-  for (index_t r = 0; r < R; ++r) {
-    const index_t k = rows[r];
-    const index_t* f = cand + 3 * static_cast<std::size_t>(k);
-    const DualLine L = dual_line(dv, f);
-    LocalGrad<M> G;
-    if (!L.ok) {
+  parallel_ranges(R, 512, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t r = index_t(lo); r < index_t(hi); ++r) {
+      const index_t k = rows[r];
+      const index_t* f = cand + 3 * static_cast<std::size_t>(k);
+      const DualLine L = dual_line(dv, f);
+      LocalGrad<M> G;
+      if (!L.ok) {
+        G.store(slots, static_cast<std::size_t>(r) * M);
+        continue;
+      }
+      V go = {0.0, 0.0, 0.0}, gu = {0.0, 0.0, 0.0};
+      for (int v = 0; v < 3; ++v) {
+        const index_t g = edge[3 * k + v];
+        const real_t gv = grad[3 * k + v];
+        if (g == kNone || crosses[3 * k + v] || gv == 0) continue;
+        const index_t* ft = dv.face_tets + 2 * static_cast<std::size_t>(g);
+        V a, b;
+        real_t sign = 1.0;
+        const bool ray = dual_edge(dv, g, &a, &b, &sign);
+        real_t t = 0.0;
+        line_edge_dist2(L.o, L.u, a, b, ray, &t);
+        // q = P_u r with r = a - o + t (b - a) (segment) or a - o + t b (ray), t held fixed.
+        const V rr = ray ? a - L.o + b * t : a - L.o + (b - a) * t;
+        const real_t ru = dot(rr, L.u);
+        const V q = rr - L.u * ru;
+        const real_t D = std::sqrt(dot(q, q));
+        if (!(D > 0)) continue;
+        const V gq = q * (gv / D);
+        const real_t gqu = dot(gq, L.u);
+        const V gr = gq - L.u * gqu;
+        gu = gu - rr * gqu - gq * ru;
+        go = go - gr;
+        orthocentre_backward(dv, ft[0], ray ? gr : gr * (1.0 - t), G);
+        if (ray) normal_backward(dv, g, sign, gr * t, G);
+        else orthocentre_backward(dv, ft[1], gr * t, G);
+      }
+      dual_line_backward(f, L, go, gu, G);
       G.store(slots, static_cast<std::size_t>(r) * M);
-      continue;
     }
-    V go = {0.0, 0.0, 0.0}, gu = {0.0, 0.0, 0.0};
-    for (int v = 0; v < 3; ++v) {
-      const index_t g = edge[3 * k + v];
-      const real_t gv = grad[3 * k + v];
-      if (g == kNone || crosses[3 * k + v] || gv == 0) continue;
-      const index_t* ft = dv.face_tets + 2 * static_cast<std::size_t>(g);
-      V a, b;
-      real_t sign = 1.0;
-      const bool ray = dual_edge(dv, g, &a, &b, &sign);
-      real_t t = 0.0;
-      line_edge_dist2(L.o, L.u, a, b, ray, &t);
-      // q = P_u r with r = a - o + t (b - a) (segment) or a - o + t b (ray), t held fixed.
-      const V rr = ray ? a - L.o + b * t : a - L.o + (b - a) * t;
-      const real_t ru = dot(rr, L.u);
-      const V q = rr - L.u * ru;
-      const real_t D = std::sqrt(dot(q, q));
-      if (!(D > 0)) continue;
-      const V gq = q * (gv / D);
-      const real_t gqu = dot(gq, L.u);
-      const V gr = gq - L.u * gqu;
-      gu = gu - rr * gqu - gq * ru;
-      go = go - gr;
-      orthocentre_backward(dv, ft[0], ray ? gr : gr * (1.0 - t), G);
-      if (ray) normal_backward(dv, g, sign, gr * t, G);
-      else orthocentre_backward(dv, ft[1], gr * t, G);
-    }
-    dual_line_backward(f, L, go, gu, G);
-    G.store(slots, static_cast<std::size_t>(r) * M);
-  }
+  });
   return reduce_slots(dv.N, {&slots}, num_threads);
 }
 

@@ -40,8 +40,10 @@
 // held fixed (exact: at an interior minimum the distance is stationary in t, and a clamped t is locally
 // constant). Degenerate (clamped) tets pass no gradient.
 //
-// num_threads: 0 uses the OpenMP default above a size threshold and one thread below it; n > 0 forces n
-// threads (tests). Results are bit-for-bit the same for any thread count.
+// num_threads: 0 uses the thread budget (OpenMP's maximum, which torch.set_num_threads sets) above a size
+// threshold and one thread below it; n > 0 forces n threads (tests). The loops run on TBB when it is compiled
+// in (parallel.h: its idle threads do not spin for milliseconds as OpenMP's do). Results are bit-for-bit the
+// same for any thread count.
 #pragma once
 #include <cstdint>
 #include <vector>

@@ -6,6 +6,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "parallel.h"
+
 namespace dmesh {
 namespace {
 
@@ -100,8 +102,12 @@ PowerDiagramResult power_diagram(const real_t* P, const real_t* W, index_t N, co
   }
   PowerDiagramResult out;
   out.orthocentres.resize(3 * static_cast<std::size_t>(T));
-#pragma omp parallel for schedule(static) if (T > kParallelMin)
-  for (index_t t = 0; t < T; ++t) orthocentre(P, W, tets + 4 * t, out.orthocentres.data() + 3 * t);
+  const int nt_t = threads_for(0, std::size_t(T), kParallelMin);
+  parallel_ranges(T, grain_for(T, nt_t, 1024), nt_t, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t t = index_t(lo); t < index_t(hi); ++t) {
+      orthocentre(P, W, tets + 4 * t, out.orthocentres.data() + 3 * t);
+    }
+  });
 
   // Faces: each interior face once (from its lower-id tet), each hull face from its only tet.
   out.tet_faces.assign(4 * static_cast<std::size_t>(T), kNone);
@@ -170,13 +176,29 @@ PowerDiagramResult power_diagram(const real_t* P, const real_t* W, index_t N, co
         for (int j = 0; j < 4; ++j)
           if (j != k) put(tets[4 * t + k], tets[4 * t + j]);
   });
+  // A row lists each neighbour once per tet the two points share (about 5 times): drop the repeats first
+  // with a per-thread mark (kept across calls, cleared after each row), then sort the unique ids: several
+  // times cheaper than sorting the whole row.
   std::vector<index_t> row_len(N, 0);
-#pragma omp parallel for schedule(dynamic, 256) if (N > kParallelMin)
-  for (index_t i = 0; i < N; ++i) {
-    auto b = raw.indices.begin() + raw.offsets[i], e = raw.indices.begin() + raw.offsets[i + 1];
-    std::sort(b, e);
-    row_len[i] = static_cast<index_t>(std::unique(b, e) - b);
-  }
+  parallel_ranges(N, 256, threads_for(0, std::size_t(N), kParallelMin), [&](std::int64_t lo, std::int64_t hi) {
+    static thread_local std::vector<index_t> mark;
+    if (mark.size() < static_cast<std::size_t>(N)) mark.assign(N, kNone);
+    for (index_t i = index_t(lo); i < index_t(hi); ++i) {
+      index_t* row = raw.indices.data() + raw.offsets[i];
+      const index_t len = raw.offsets[i + 1] - raw.offsets[i];
+      index_t m = 0;
+      for (index_t k = 0; k < len; ++k) {
+        const index_t j = row[k];
+        if (mark[j] != i) {
+          mark[j] = i;
+          row[m++] = j;
+        }
+      }
+      std::sort(row, row + m);
+      for (index_t k = 0; k < m; ++k) mark[row[k]] = kNone;
+      row_len[i] = m;
+    }
+  });
   Csr& nb = out.point_neighbors;
   nb.offsets.assign(N + 1, 0);
   for (index_t i = 0; i < N; ++i) nb.offsets[i + 1] = nb.offsets[i] + row_len[i];

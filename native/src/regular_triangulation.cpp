@@ -12,6 +12,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "parallel.h"
+
 namespace dmesh {
 namespace {
 
@@ -87,22 +89,25 @@ void canonicalise(RegularTriangulationResult& out) {
   static const int kFront[4][4] = {{0, 1, 2, 3}, {1, 0, 3, 2}, {2, 3, 0, 1}, {3, 2, 1, 0}};
   std::vector<index_t> tets(4 * T), nbrs(4 * T);
   // The loops below write disjoint entries only, so their result does not depend on the thread count.
-#pragma omp parallel for schedule(static)
-  for (std::size_t t = 0; t < T; ++t) {
-    const index_t* v = &out.tets[4 * t];
-    const index_t* nb = &out.neighbors[4 * t];
-    const int m = static_cast<int>(std::min_element(v, v + 4) - v);
-    int p[4] = {kFront[m][0], kFront[m][1], kFront[m][2], kFront[m][3]};
-    // A cyclic rotation of the last three (even) puts their smallest id second.
-    int r = 1;
-    if (v[p[2]] < v[p[r]]) r = 2;
-    if (v[p[3]] < v[p[r]]) r = 3;
-    const int q[4] = {p[0], p[1 + (r - 1) % 3], p[1 + r % 3], p[1 + (r + 1) % 3]};
-    for (int k = 0; k < 4; ++k) {
-      tets[4 * t + k] = v[q[k]];
-      nbrs[4 * t + k] = nb[q[k]];
+  const int nt = threads_for(0, T, kParallelMin);
+  const std::int64_t grain = grain_for(std::int64_t(T), nt, 1024);
+  parallel_ranges(std::int64_t(T), grain, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (std::size_t t = std::size_t(lo); t < std::size_t(hi); ++t) {
+      const index_t* v = &out.tets[4 * t];
+      const index_t* nb = &out.neighbors[4 * t];
+      const int m = static_cast<int>(std::min_element(v, v + 4) - v);
+      int p[4] = {kFront[m][0], kFront[m][1], kFront[m][2], kFront[m][3]};
+      // A cyclic rotation of the last three (even) puts their smallest id second.
+      int r = 1;
+      if (v[p[2]] < v[p[r]]) r = 2;
+      if (v[p[3]] < v[p[r]]) r = 3;
+      const int q[4] = {p[0], p[1 + (r - 1) % 3], p[1 + r % 3], p[1 + (r + 1) % 3]};
+      for (int k = 0; k < 4; ++k) {
+        tets[4 * t + k] = v[q[k]];
+        nbrs[4 * t + k] = nb[q[k]];
+      }
     }
-  }
+  });
   // Rows ascending: a counting sort on v0 (the smallest id: few tets share one), then a small sort of each
   // bucket on (v1, v2, v3); about 3x faster than one comparison sort of all rows.
   struct Row {
@@ -122,24 +127,27 @@ void canonicalise(RegularTriangulationResult& out) {
       rows[fill[v[0]]++] = {{v[0], v[1], v[2], v[3]}, static_cast<index_t>(t)};
     }
   }
-#pragma omp parallel for schedule(dynamic, 4096)
-  for (index_t i = 0; i < n; ++i) {
-    std::sort(rows.begin() + start[i], rows.begin() + start[i + 1], [](const Row& a, const Row& b) {
-      return std::lexicographical_compare(a.v + 1, a.v + 4, b.v + 1, b.v + 4);
-    });
-  }
-  std::vector<index_t> new_id(T);
-#pragma omp parallel for schedule(static)
-  for (std::size_t i = 0; i < T; ++i) new_id[rows[i].old] = static_cast<index_t>(i);
-#pragma omp parallel for schedule(static)
-  for (std::size_t i = 0; i < T; ++i) {
-    const index_t t = rows[i].old;
-    for (int k = 0; k < 4; ++k) {
-      out.tets[4 * i + k] = rows[i].v[k];
-      const index_t n = nbrs[4 * t + k];
-      out.neighbors[4 * i + k] = n == kNone ? kNone : new_id[n];
+  parallel_ranges(n, 4096, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (index_t i = index_t(lo); i < index_t(hi); ++i) {
+      std::sort(rows.begin() + start[i], rows.begin() + start[i + 1], [](const Row& a, const Row& b) {
+        return std::lexicographical_compare(a.v + 1, a.v + 4, b.v + 1, b.v + 4);
+      });
     }
-  }
+  });
+  std::vector<index_t> new_id(T);
+  parallel_ranges(std::int64_t(T), grain, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (std::size_t i = std::size_t(lo); i < std::size_t(hi); ++i) new_id[rows[i].old] = static_cast<index_t>(i);
+  });
+  parallel_ranges(std::int64_t(T), grain, nt, [&](std::int64_t lo, std::int64_t hi) {
+    for (std::size_t i = std::size_t(lo); i < std::size_t(hi); ++i) {
+      const index_t t = rows[i].old;
+      for (int k = 0; k < 4; ++k) {
+        out.tets[4 * i + k] = rows[i].v[k];
+        const index_t n = nbrs[4 * t + k];
+        out.neighbors[4 * i + k] = n == kNone ? kNone : new_id[n];
+      }
+    }
+  });
 }
 
 }  // namespace
