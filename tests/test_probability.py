@@ -194,41 +194,43 @@ def test_power_cell_factor_flag():
 
 # -------------------------------------------------------------- native against reference, coherent pass
 
-def test_face_probabilities_agree_between_impls():
-    rng = np.random.default_rng(14)
-    n = 800
-    pts, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
+def _both_impls(seed: int, n: int, outputs=("prob",)) -> dict:
+    """impl -> (FaceProbabilities, gradients of points, weights, reals) of one random DMesh, the loss a ramp-
+    weighted sum of the named outputs (a gradient nothing reaches is zeros)."""
     import dmesh
 
-    fps = {}
+    rng = np.random.default_rng(seed)
+    pts, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
+    out = {}
     for impl in probability.IMPLS:
         dm = dmesh.DMesh(pts, w, r, config=probability.ProbabilityConfig(impl=impl), dtype=torch.float64)
         fp = dm.face_probabilities()
-        (fp.prob * torch.linspace(0, 1, len(fp.prob), dtype=torch.float64)).sum().backward()
-        fps[impl] = (fp, [t.grad for t in dm.parameters()])
+        up = torch.linspace(0, 1, len(fp.prob), dtype=torch.float64)
+        sum((getattr(fp, name) * up).sum() for name in outputs).backward()
+        out[impl] = (fp, [torch.zeros_like(t) if t.grad is None else t.grad for t in dm.parameters()])
+    return out
+
+
+def _close(x, y):
+    assert torch.allclose(x, y, rtol=1e-9, atol=1e-9 * y.abs().max().item())
+
+
+def test_face_probabilities_agree_between_impls():
+    fps = _both_impls(14, 800)
     (a, ga), (b, gb) = fps["native"], fps["reference"]
     assert torch.equal(a.faces, b.faces)
     for x, y in [(a.delta, b.delta), (a.prob, b.prob), *zip(ga, gb)]:
-        assert torch.allclose(x, y, rtol=1e-9, atol=1e-9 * y.abs().max().item())
+        _close(x, y)
 
 
 @pytest.mark.parametrize("outputs", [("delta",), ("prob_wdt",), ("prob_real",), ("delta", "prob"),
                                      ("prob_wdt", "prob_real", "prob")])
 def test_gradients_through_any_outputs_agree_between_impls(outputs):
     # The native Lambda's backward skips the outputs nothing differentiates (their gradient arrives as None);
-    # each subset must still give the reference's gradients (same tolerances as the test above).
-    rng = np.random.default_rng(15)
-    n = 300
-    pts, w, r = rng.random((n, 3)), spacing_weights(rng, n), rng.random(n)
-    grads = {}
-    for impl in probability.IMPLS:
-        dm = dmesh.DMesh(pts, w, r, config=probability.ProbabilityConfig(impl=impl), dtype=torch.float64)
-        fp = dm.face_probabilities()
-        up = torch.linspace(0, 1, len(fp.prob), dtype=torch.float64)
-        sum((getattr(fp, name) * up).sum() for name in outputs).backward()
-        grads[impl] = [torch.zeros_like(t) if t.grad is None else t.grad for t in dm.parameters()]
+    # each subset must still give the reference's gradients.
+    grads = {impl: g for impl, (_, g) in _both_impls(15, 300, outputs).items()}
     for x, y in zip(grads["native"], grads["reference"]):
-        assert torch.allclose(x, y, rtol=1e-9, atol=1e-9 * y.abs().max().item())
+        _close(x, y)
     assert any(g.abs().max() > 0 for g in grads["native"])
 
 
